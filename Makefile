@@ -1,0 +1,35 @@
+# Every target that runs our code depends on .venv (make setup), which installs from nothing.
+SHELL := /bin/bash
+PY ?= python3
+VENV := .venv
+PYTHON := $(VENV)/bin/python
+# Shared libraries bpy loads even headless.
+APT_LIBS := libx11-6 libxrender1 libxfixes3 libxi6 libxkbcommon0 libsm6 libice6 libgl1 libegl1 \
+            libxxf86vm1 libxext6 libxcursor1 libxinerama1 libxrandr2 libglu1-mesa
+
+.PHONY: setup test bench demo dataset train eval clean
+
+setup: $(VENV)/.done
+
+$(VENV)/.done: requirements.txt Makefile
+	@missing=""; for p in $(APT_LIBS); do dpkg -s $$p >/dev/null 2>&1 || missing="$$missing $$p"; done; \
+	if [ -n "$$missing" ]; then \
+	  echo "installing shared libraries for bpy:$$missing"; \
+	  apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $$missing >/dev/null; \
+	fi
+	@test -x $(PYTHON) || $(PY) -m venv $(VENV)
+	$(PYTHON) -m pip install -q -r requirements.txt
+	$(PYTHON) -c "import bpy, torch, OpenEXR, kornia, cv2; print('setup ok: bpy', bpy.app.version_string, 'torch', torch.__version__)"
+	@touch $@
+
+test: setup
+	$(PYTHON) -m pytest -q tests
+
+bench: setup
+	$(PYTHON) -m bench.run
+
+demo: setup
+	$(PYTHON) -m demo
+
+clean:
+	rm -rf $(VENV)

@@ -1,0 +1,87 @@
+"""`make bench`: run every bench module, write bench/out/results.json and results.md.
+
+A bench module exposes `run() -> dict` mapping a figure's name to
+{"value": number, "unit": str, "goal": str or None, "met": bool or None}. Modules that cannot run
+(a missing data set, say) raise `bench.Skip` with a reason, which is reported, not hidden.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import json
+import platform
+import sys
+import time
+from pathlib import Path
+
+MODULES = ["bench.geometry", "bench.scenes", "bench.fusion", "bench.model"]
+OUT = Path("bench/out")
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--only", nargs="*", help="module names (e.g. geometry model)")
+    ap.add_argument("--out", type=Path, default=OUT)
+    args = ap.parse_args(argv)
+    results, failed = {}, False
+    for name in MODULES:
+        short = name.split(".")[-1]
+        if args.only and short not in args.only:
+            continue
+        t0 = time.perf_counter()
+        try:
+            mod = importlib.import_module(name)
+        except ModuleNotFoundError as exc:
+            if exc.name == name:
+                continue  # not written yet
+            raise
+        print(f"bench: {short} ...", flush=True)
+        try:
+            figures = mod.run()
+            results[short] = {"figures": figures, "seconds": round(time.perf_counter() - t0, 1)}
+        except Exception as exc:  # noqa: BLE001 - a bench failure is reported in the table
+            results[short] = {"error": f"{type(exc).__name__}: {exc}"}
+            failed = True
+    args.out.mkdir(parents=True, exist_ok=True)
+    meta = {"python": sys.version.split()[0], "machine": platform.machine(), "cpus": _cpus(), "time": time.strftime("%Y-%m-%d %H:%M")}
+    _write(args.out / "results.json", json.dumps({"meta": meta, "results": results}, indent=2))
+    _write(args.out / "results.md", to_markdown(meta, results))
+    print(to_markdown(meta, results))
+    print(f"written {args.out / 'results.json'} and {args.out / 'results.md'}")
+    return 1 if failed else 0
+
+
+def _cpus() -> int:
+    import os
+
+    return len(os.sched_getaffinity(0))
+
+
+def _write(path: Path, text: str) -> None:
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(text)
+    tmp.replace(path)
+
+
+def _fmt(v) -> str:
+    if isinstance(v, float):
+        return f"{v:.4g}"
+    return str(v)
+
+
+def to_markdown(meta: dict, results: dict) -> str:
+    lines = [f"Bench on {meta['cpus']} CPUs, Python {meta['python']}, {meta['time']}", "",
+             "| part | figure | value | unit | goal | met |", "|---|---|---|---|---|---|"]
+    for part, r in results.items():
+        if "error" in r:
+            lines.append(f"| {part} | (failed) | {r['error']} | | | |")
+            continue
+        for name, f in r["figures"].items():
+            met = {True: "yes", False: "NO", None: ""}[f.get("met")]
+            lines.append(f"| {part} | {name} | {_fmt(f['value'])} | {f.get('unit', '')} | {f.get('goal') or ''} | {met} |")
+    return "\n".join(lines) + "\n"
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,674 @@
+"""Camera models: pixel <-> unit ray, batched, numpy or torch.
+
+Frames and formulas are those of DESIGN.md: camera frame OpenCV (x right, y down, z forward),
+pixels (u right, v down) with the centre of the top-left pixel at (0, 0).
+
+Every camera has
+
+    project(points[..., 3]) -> (uv[..., 2], valid[...])
+    unproject(uv[..., 2])   -> (rays[..., 3], valid[...])      unit rays
+
+Numpy in gives numpy out; torch in gives torch out, differentiable. All the arithmetic is written
+once, in torch; numpy arrays go through ``torch.from_numpy`` (no copy). ``valid`` says whether the
+point (pixel) lies in the model's domain; where it is False the other output is finite but
+meaningless. Whether a pixel lies inside the image is ``camera.inside(uv)``.
+
+Models whose mapping has no closed-form inverse (``kb_theta`` projection, ``radial_poly`` and
+``opencv_fisheye`` unprojection) invert a monotonic polynomial with safeguarded Newton iterations,
+vectorised, to ``SOLVE_TOL`` (1e-13 rad or normalised units, float64). Gradients flow through one
+final Newton step, which gives the implicit-function derivative.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, ClassVar
+
+import numpy as np
+import torch
+
+SOLVE_TOL = 1e-13
+_EPS = 1e-12
+
+
+class CameraError(ValueError):
+    """A calibration dictionary that cannot make a camera (names the field)."""
+
+
+# ---------------------------------------------------------------- array plumbing
+
+
+def _to_torch(x) -> tuple[torch.Tensor, bool]:
+    if isinstance(x, torch.Tensor):
+        return (x if x.is_floating_point() else x.double()), False
+    a = np.asarray(x)
+    if not np.issubdtype(a.dtype, np.floating):
+        a = a.astype(np.float64)
+    return torch.from_numpy(np.ascontiguousarray(a)), True
+
+
+def _back(t: torch.Tensor, to_numpy: bool):
+    return t.detach().cpu().numpy() if to_numpy else t
+
+
+def _check_last(t: torch.Tensor, n: int, what: str) -> None:
+    if t.ndim < 1 or t.shape[-1] != n:
+        raise ValueError(f"{what} must have shape (..., {n}), got {tuple(t.shape)}")
+
+
+def _safe_div(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """a / b where b != 0, else 0, without NaN gradients."""
+    nz = b.abs() > _EPS
+    return torch.where(nz, a / torch.where(nz, b, torch.ones_like(b)), torch.zeros_like(a))
+
+
+def _poly(coeffs: torch.Tensor, t: torch.Tensor, first_power: int = 1) -> torch.Tensor:
+    """sum_i c_i t^(i + first_power), Horner."""
+    acc = torch.zeros_like(t)
+    for c in reversed(coeffs.unbind(-1)):
+        acc = acc * t + c
+    return acc * t**first_power if first_power else acc
+
+
+def _poly_deriv(coeffs: torch.Tensor, t: torch.Tensor, first_power: int = 1) -> torch.Tensor:
+    acc = torch.zeros_like(t)
+    n = coeffs.shape[-1]
+    for i in reversed(range(n)):
+        power = i + first_power
+        acc = acc * t + coeffs[..., i] * power
+    return acc * t ** (first_power - 1) if first_power > 1 else acc
+
+
+def _invert_monotonic(f, df, y: torch.Tensor, t_max: float, guess: torch.Tensor) -> torch.Tensor:
+    """Solve f(t) = y for t in [0, t_max], f increasing there. Safeguarded Newton, vectorised.
+
+    Iterates without gradients, then takes one Newton step with them: at the root that step
+    carries the implicit-function derivatives dt/dy = 1/f'(t) and dt/dp = -(df/dp)/f'(t).
+    """
+    with torch.no_grad():
+        yd = y.detach()
+        lo = torch.zeros_like(yd)
+        hi = torch.full_like(yd, t_max)
+        t = guess.detach().clamp(0.0, t_max)
+        for _ in range(100):
+            ft = f(t) - yd
+            lo = torch.where(ft < 0, t, lo)
+            hi = torch.where(ft > 0, t, hi)
+            d = df(t)
+            step = ft / torch.where(d > 0, d, torch.ones_like(d))
+            t_new = t - step
+            bad = (t_new <= lo) | (t_new >= hi) | (d <= 0)
+            t_new = torch.where(bad, 0.5 * (lo + hi), t_new)
+            delta = (t_new - t).abs().max() if t.numel() else torch.tensor(0.0)
+            t = t_new
+            if delta < SOLVE_TOL * 1e-2:
+                break
+    d = df(t)
+    return t - (f(t) - y) / torch.where(d > 0, d, torch.ones_like(d))
+
+
+def _monotonic_limit(f_np, df_np, upper: float, cap: float) -> float:
+    """Largest T <= upper bound such that f is increasing on [0, T] and f(T) <= cap.
+
+    f_np / df_np: numpy callables on float64 arrays. Used once per camera, at construction.
+    """
+    t = np.linspace(0.0, upper, 200001)
+    d = df_np(t)
+    v = f_np(t)
+    stop = np.nonzero((d <= 0) | (v >= cap))[0]
+    stop = stop[stop > 0]
+    if len(stop) == 0:
+        return upper
+    lo, hi = t[stop[0] - 1], t[stop[0]]
+    for _ in range(200):
+        mid = 0.5 * (lo + hi)
+        if df_np(np.array([mid]))[0] <= 0 or f_np(np.array([mid]))[0] >= cap:
+            hi = mid
+        else:
+            lo = mid
+    return float(lo)
+
+
+# ---------------------------------------------------------------- base class
+
+
+class Camera:
+    """Base: width, height and a model's parameters. Subclasses give `_project`/`_unproject`."""
+
+    model: ClassVar[str]
+    keys: ClassVar[tuple[str, ...]]
+    list_keys: ClassVar[dict[str, tuple[int, int]]] = {}  # key -> (min, max) length
+
+    def __init__(self, width: int, height: int, **params: Any):
+        self.width = int(width)
+        self.height = int(height)
+        if self.width <= 0 or self.height <= 0:
+            raise CameraError(f"{self.model}: width and height must be positive")
+        missing = [k for k in self.keys if k not in params]
+        if missing:
+            raise CameraError(f"{self.model}: missing key '{missing[0]}'")
+        extra = [k for k in params if k not in self.keys]
+        if extra:
+            raise CameraError(f"{self.model}: unknown key '{extra[0]}' (keys: {', '.join(self.keys)})")
+        self.params: dict[str, Any] = {}
+        for k in self.keys:
+            v = params[k]
+            if k in self.list_keys:
+                lo, hi = self.list_keys[k]
+                try:
+                    v = [float(x) for x in v]
+                except (TypeError, ValueError):
+                    raise CameraError(f"{self.model}: '{k}' must be a list of numbers") from None
+                if not lo <= len(v) <= hi:
+                    raise CameraError(f"{self.model}: '{k}' must have {lo} to {hi} entries, has {len(v)}")
+            else:
+                try:
+                    v = float(v)
+                except (TypeError, ValueError):
+                    raise CameraError(f"{self.model}: '{k}' must be a number, got {v!r}") from None
+            if not np.all(np.isfinite(v)):
+                raise CameraError(f"{self.model}: '{k}' must be finite")
+            self.params[k] = v
+        self._validate()
+
+    def _validate(self) -> None:
+        for k in ("fx", "fy"):
+            if k in self.params and self.params[k] <= 0:
+                raise CameraError(f"{self.model}: '{k}' must be positive")
+
+    def __getattr__(self, name):
+        params = self.__dict__.get("params")
+        if params is not None and name in params:
+            return params[name]
+        raise AttributeError(name)
+
+    def __repr__(self) -> str:
+        p = ", ".join(f"{k}={v}" for k, v in self.params.items())
+        return f"{type(self).__name__}({self.width}x{self.height}, {p})"
+
+    def __eq__(self, other) -> bool:
+        return isinstance(other, Camera) and self.to_dict() == other.to_dict()
+
+    # -- dict I/O
+    def to_dict(self) -> dict:
+        d = {"model": self.model, "width": self.width, "height": self.height}
+        for k, v in self.params.items():
+            d[k] = list(v) if isinstance(v, list) else v
+        return d
+
+    def replace(self, **changes) -> "Camera":
+        d = self.to_dict()
+        d.update(changes)
+        return camera_from_dict(d)
+
+    # -- public API
+    def project(self, points):
+        p, to_np = _to_torch(points)
+        _check_last(p, 3, "points")
+        uv, valid = self._project(p)
+        return _back(uv, to_np), _back(valid, to_np)
+
+    def unproject(self, uv):
+        q, to_np = _to_torch(uv)
+        _check_last(q, 2, "uv")
+        rays, valid = self._unproject(q)
+        return _back(rays, to_np), _back(valid, to_np)
+
+    def inside(self, uv):
+        """True where a pixel position lies on the image (between the outer pixel edges)."""
+        q, to_np = _to_torch(uv)
+        _check_last(q, 2, "uv")
+        u, v = q[..., 0], q[..., 1]
+        m = (u >= -0.5) & (u <= self.width - 0.5) & (v >= -0.5) & (v <= self.height - 0.5)
+        return _back(m, to_np)
+
+    def pixel_grid(self, dtype=torch.float64) -> torch.Tensor:
+        """(H, W, 2) pixel centres (u, v)."""
+        v, u = torch.meshgrid(
+            torch.arange(self.height, dtype=dtype), torch.arange(self.width, dtype=dtype), indexing="ij"
+        )
+        return torch.stack([u, v], -1)
+
+    # -- resize and crop (pixel centres: u' = s (u + 0.5) - 0.5)
+    def scaled(self, sx: float, sy: float | None = None) -> "Camera":
+        """The camera of this image resampled by (sx, sy): width' = round(width * sx)."""
+        sy = sx if sy is None else sy
+        d = self._scaled_params(float(sx), float(sy))
+        d["width"] = int(round(self.width * sx))
+        d["height"] = int(round(self.height * sy))
+        return camera_from_dict(d)
+
+    def resized(self, width: int, height: int) -> "Camera":
+        """The camera of this image resized to exactly width x height."""
+        d = self._scaled_params(width / self.width, height / self.height)
+        d["width"], d["height"] = int(width), int(height)
+        return camera_from_dict(d)
+
+    def cropped(self, x0: int, y0: int, width: int, height: int) -> "Camera":
+        """The camera of the sub-image whose top-left pixel is (x0, y0) in this image."""
+        d = self.to_dict()
+        d["cx"] -= x0
+        d["cy"] -= y0
+        d["width"], d["height"] = int(width), int(height)
+        return camera_from_dict(d)
+
+    def _scaled_params(self, sx: float, sy: float) -> dict:
+        d = self.to_dict()
+        d["fx"] *= sx
+        d["fy"] *= sy
+        d["cx"] = sx * (d["cx"] + 0.5) - 0.5
+        d["cy"] = sy * (d["cy"] + 0.5) - 0.5
+        return d
+
+    # -- helpers for subclasses
+    def _t(self, value, like: torch.Tensor) -> torch.Tensor:
+        return torch.as_tensor(value, dtype=like.dtype, device=like.device)
+
+    def _normalised(self, uv: torch.Tensor):
+        return (uv[..., 0] - self.cx) / self.fx, (uv[..., 1] - self.cy) / self.fy
+
+    def _to_pixels(self, mx: torch.Tensor, my: torch.Tensor) -> torch.Tensor:
+        return torch.stack([self.fx * mx + self.cx, self.fy * my + self.cy], -1)
+
+    def _project(self, p: torch.Tensor):
+        raise NotImplementedError
+
+    def _unproject(self, uv: torch.Tensor):
+        raise NotImplementedError
+
+
+# ---------------------------------------------------------------- radially symmetric models
+
+
+class RadialCamera(Camera):
+    """u = fx rho(theta) x/chi + cx, v = fy rho(theta) y/chi + cy.
+
+    Subclasses give rho(theta) and its inverse; `theta_max` bounds the projection domain
+    (theta < theta_max) and `rho_max` = rho(theta_max) the unprojection domain.
+    """
+
+    theta_max: float = math.pi
+
+    def rho(self, theta: torch.Tensor) -> torch.Tensor:
+        raise NotImplementedError
+
+    def theta_of_rho(self, rho: torch.Tensor) -> torch.Tensor:
+        raise NotImplementedError
+
+    @property
+    def rho_max(self) -> float:
+        return float(self.rho(torch.tensor(self.theta_max, dtype=torch.float64)))
+
+    def _project(self, p):
+        x, y, z = p.unbind(-1)
+        chi = torch.sqrt(x * x + y * y)
+        theta = torch.atan2(chi, z)
+        r = self.rho(theta)
+        scale = _safe_div(r, chi)
+        valid = (theta < self.theta_max) & ((chi > 0) | (z > 0))
+        return self._to_pixels(scale * x, scale * y), valid
+
+    def _unproject(self, uv):
+        mx, my = self._normalised(uv)
+        r = torch.sqrt(mx * mx + my * my)
+        theta = self.theta_of_rho(r)
+        s = _safe_div(torch.sin(theta), r)
+        rays = torch.stack([s * mx, s * my, torch.cos(theta)], -1)
+        return rays, r < self.rho_max
+
+
+class Equidistant(RadialCamera):
+    model, keys = "equidistant", ("fx", "fy", "cx", "cy")
+
+    def rho(self, theta):
+        return theta
+
+    def theta_of_rho(self, rho):
+        return rho
+
+
+class Equisolid(RadialCamera):
+    model, keys = "equisolid", ("fx", "fy", "cx", "cy")
+
+    def rho(self, theta):
+        return 2 * torch.sin(theta / 2)
+
+    def theta_of_rho(self, rho):
+        return 2 * torch.asin((rho / 2).clamp(-1, 1))
+
+    @property
+    def rho_max(self):
+        return 2.0
+
+
+class Stereographic(RadialCamera):
+    model, keys = "stereographic", ("fx", "fy", "cx", "cy")
+
+    def rho(self, theta):
+        return 2 * torch.tan(theta / 2)
+
+    def theta_of_rho(self, rho):
+        return 2 * torch.atan(rho / 2)
+
+    @property
+    def rho_max(self):
+        return math.inf
+
+
+class Pinhole(RadialCamera):
+    """u = fx x/z + cx (z > 0); every pixel unprojects."""
+
+    model, keys = "pinhole", ("fx", "fy", "cx", "cy")
+    theta_max = math.pi / 2
+
+    def rho(self, theta):
+        return torch.tan(theta)
+
+    def theta_of_rho(self, rho):
+        return torch.atan(rho)
+
+    @property
+    def rho_max(self):
+        return math.inf
+
+    def _project(self, p):
+        x, y, z = p.unbind(-1)
+        valid = z > 0
+        zs = torch.where(valid, z, torch.ones_like(z))
+        return self._to_pixels(x / zs, y / zs), valid
+
+    def _unproject(self, uv):
+        mx, my = self._normalised(uv)
+        rays = torch.stack([mx, my, torch.ones_like(mx)], -1)
+        return rays / rays.norm(dim=-1, keepdim=True), torch.ones_like(mx, dtype=torch.bool)
+
+
+class _PolyRadial(RadialCamera):
+    """rho = poly(theta), inverted iteratively; domain limited to where poly increases."""
+
+    coeff_key: ClassVar[str] = "k"
+    first_power: ClassVar[int] = 1
+
+    def _coeffs(self, like):
+        return self._t(self._poly_coeffs(), like)
+
+    def _poly_coeffs(self) -> list[float]:
+        return self.params[self.coeff_key]
+
+    def _validate(self):
+        super()._validate()
+        c = np.asarray(self._poly_coeffs(), dtype=np.float64)
+        f = lambda t: self._rho_np(c, t)  # noqa: E731
+        df = lambda t: self._drho_np(c, t)  # noqa: E731
+        if df(np.array([1e-9]))[0] <= 0:
+            raise CameraError(f"{self.model}: '{self.coeff_key}' must make rho increase from theta = 0")
+        self.theta_max = _monotonic_limit(f, df, math.pi, math.inf)
+        self._rho_max = float(f(np.array([self.theta_max]))[0])
+
+    def _rho_np(self, c, t):
+        return _poly(torch.from_numpy(c), torch.from_numpy(np.asarray(t, dtype=np.float64)), self.first_power).numpy()
+
+    def _drho_np(self, c, t):
+        return _poly_deriv(torch.from_numpy(c), torch.from_numpy(np.asarray(t, dtype=np.float64)), self.first_power).numpy()
+
+    @property
+    def rho_max(self):
+        return self._rho_max
+
+    def rho(self, theta):
+        return _poly(self._coeffs(theta), theta, self.first_power)
+
+    def theta_of_rho(self, rho):
+        c = self._coeffs(rho)
+        d0 = float(self._drho_np(np.asarray(self._poly_coeffs()), np.array([0.0]))[0])
+        return _invert_monotonic(
+            lambda t: _poly(c, t, self.first_power),
+            lambda t: _poly_deriv(c, t, self.first_power),
+            rho,
+            self.theta_max,
+            rho / d0,
+        )
+
+
+class OpenCVFisheye(_PolyRadial):
+    """theta_d = theta (1 + k1 theta^2 + k2 theta^4 + k3 theta^6 + k4 theta^8) (cv2.fisheye)."""
+
+    model, keys = "opencv_fisheye", ("fx", "fy", "cx", "cy", "k")
+    list_keys = {"k": (4, 4)}
+
+    def _poly_coeffs(self):
+        k = self.params["k"]
+        # theta + k1 theta^3 + ... as coefficients of theta^1..theta^9
+        return [1.0, 0.0, k[0], 0.0, k[1], 0.0, k[2], 0.0, k[3]]
+
+
+class RadialPoly(_PolyRadial):
+    """WoodScape: rho = k1 theta + ... + k4 theta^4 in pixels; v is scaled by aspect_ratio."""
+
+    model, keys = "radial_poly", ("cx", "cy", "aspect_ratio", "k")
+    list_keys = {"k": (4, 4)}
+
+    def _validate(self):
+        if self.params["aspect_ratio"] <= 0:
+            raise CameraError("radial_poly: 'aspect_ratio' must be positive")
+        super()._validate()
+
+    @property
+    def fx(self):
+        return 1.0
+
+    @property
+    def fy(self):
+        return self.params["aspect_ratio"]
+
+    def _scaled_params(self, sx, sy):
+        d = self.to_dict()
+        d["k"] = [sx * k for k in d["k"]]
+        d["aspect_ratio"] *= sy / sx
+        d["cx"] = sx * (d["cx"] + 0.5) - 0.5
+        d["cy"] = sy * (d["cy"] + 0.5) - 0.5
+        return d
+
+
+class KBTheta(Camera):
+    """The paper's eq. 1: theta = p1 r + p2 r^2 + ... (r normalised by fx, fy). Projection inverts it."""
+
+    model, keys = "kb_theta", ("fx", "fy", "cx", "cy", "p")
+    list_keys = {"p": (1, 9)}
+
+    def _validate(self):
+        super()._validate()
+        c = torch.tensor(self.params["p"], dtype=torch.float64)
+        f = lambda r: _poly(c, torch.from_numpy(r)).numpy()  # noqa: E731
+        df = lambda r: _poly_deriv(c, torch.from_numpy(r)).numpy()  # noqa: E731
+        if self.params["p"][0] <= 0:
+            raise CameraError("kb_theta: 'p' must start with a positive p1")
+        # r where theta reaches pi, or theta stops increasing
+        upper = 1.0
+        while upper < 1e4 and f(np.array([upper]))[0] < math.pi and df(np.array([upper]))[0] > 0:
+            upper *= 2
+        self.r_max = _monotonic_limit(f, df, upper, math.pi)
+        self.theta_max = float(f(np.array([self.r_max]))[0])
+
+    def _project(self, p):
+        x, y, z = p.unbind(-1)
+        chi = torch.sqrt(x * x + y * y)
+        theta = torch.atan2(chi, z)
+        c = self._t(self.params["p"], p)
+        r = _invert_monotonic(lambda t: _poly(c, t), lambda t: _poly_deriv(c, t), theta, self.r_max, theta / c[0])
+        scale = _safe_div(r, chi)
+        valid = (theta < self.theta_max) & ((chi > 0) | (z > 0))
+        return self._to_pixels(scale * x, scale * y), valid
+
+    def _unproject(self, uv):
+        mx, my = self._normalised(uv)
+        r = torch.sqrt(mx * mx + my * my)
+        theta = _poly(self._t(self.params["p"], uv), r)
+        s = _safe_div(torch.sin(theta), r)
+        rays = torch.stack([s * mx, s * my, torch.cos(theta)], -1)
+        return rays, r < self.r_max
+
+
+# ---------------------------------------------------------------- unified camera models (Usenko et al. 2018)
+
+
+def _w1(alpha: float) -> float:
+    return alpha / (1 - alpha) if alpha <= 0.5 else (1 - alpha) / alpha
+
+
+class UCM(Camera):
+    """u = fx x / (alpha d + (1 - alpha) z) + cx; alpha in [0, 1]."""
+
+    model, keys = "ucm", ("fx", "fy", "cx", "cy", "alpha")
+
+    def _validate(self):
+        super()._validate()
+        if not 0 <= self.params["alpha"] <= 1:
+            raise CameraError(f"{self.model}: 'alpha' must be in [0, 1]")
+
+    def _d(self, x, y, z):
+        return torch.sqrt(x * x + y * y + z * z)
+
+    def _project(self, p):
+        x, y, z = p.unbind(-1)
+        a = self.alpha
+        d = self._d(x, y, z)
+        den = a * d + (1 - a) * z
+        valid = (z > -_w1(a) * d) & (den > 0)
+        den = torch.where(den > 0, den, torch.ones_like(den))
+        return self._to_pixels(x / den, y / den), valid
+
+    def _unproject(self, uv):
+        a = self.alpha
+        mx, my = self._normalised(uv)
+        r2 = mx * mx + my * my
+        valid = torch.ones_like(r2, dtype=torch.bool) if a <= 0.5 else r2 <= 1 / (2 * a - 1)
+        mz = (1 - a * a * r2) / (a * torch.sqrt((1 - (2 * a - 1) * r2).clamp(min=0)) + (1 - a))
+        rays = torch.stack([mx, my, mz], -1)
+        return rays / rays.norm(dim=-1, keepdim=True), valid
+
+
+class EUCM(UCM):
+    """UCM with d = sqrt(beta (x^2 + y^2) + z^2)."""
+
+    model, keys = "eucm", ("fx", "fy", "cx", "cy", "alpha", "beta")
+
+    def _validate(self):
+        super()._validate()
+        if self.params["beta"] <= 0:
+            raise CameraError("eucm: 'beta' must be positive")
+
+    def _d(self, x, y, z):
+        return torch.sqrt(self.beta * (x * x + y * y) + z * z)
+
+    def _unproject(self, uv):
+        a, b = self.alpha, self.beta
+        mx, my = self._normalised(uv)
+        r2 = mx * mx + my * my
+        valid = torch.ones_like(r2, dtype=torch.bool) if a <= 0.5 else r2 <= 1 / (b * (2 * a - 1))
+        mz = (1 - b * a * a * r2) / (a * torch.sqrt((1 - (2 * a - 1) * b * r2).clamp(min=0)) + (1 - a))
+        rays = torch.stack([mx, my, mz], -1)
+        return rays / rays.norm(dim=-1, keepdim=True), valid
+
+
+class DoubleSphere(Camera):
+    """d1 = |p|, d2 = |(x, y, xi d1 + z)|; u = fx x / (alpha d2 + (1 - alpha)(xi d1 + z)) + cx."""
+
+    model, keys = "double_sphere", ("fx", "fy", "cx", "cy", "xi", "alpha")
+
+    def _validate(self):
+        super()._validate()
+        if not 0 <= self.params["alpha"] <= 1:
+            raise CameraError("double_sphere: 'alpha' must be in [0, 1]")
+        if not -1 < self.params["xi"] <= 1:
+            raise CameraError("double_sphere: 'xi' must be in (-1, 1]")
+        # The paper's projection domain z > -w2 d1 is exact only for xi = 0 (measured: for xi = 0.3,
+        # alpha = 0.6 it stops at 142.4 deg where the mapping folds at 144.7). Exact: for alpha > 0.5,
+        # the angle of the ray at the unprojection boundary r^2 = 1 / (2 alpha - 1); else den > 0.
+        a, xi = self.params["alpha"], self.params["xi"]
+        self.theta_max = math.pi
+        if a > 0.5:
+            r2 = 1 / (2 * a - 1)
+            mz = -(1 - a) / (2 * a - 1)
+            k = (mz * xi + math.sqrt(mz * mz + (1 - xi * xi) * r2)) / (mz * mz + r2)
+            self.theta_max = math.atan2(k * math.sqrt(r2), k * mz - xi)
+
+    def _project(self, p):
+        x, y, z = p.unbind(-1)
+        a, xi = self.alpha, self.xi
+        d1 = torch.sqrt(x * x + y * y + z * z)
+        zx = xi * d1 + z
+        d2 = torch.sqrt(x * x + y * y + zx * zx)
+        den = a * d2 + (1 - a) * zx
+        valid = (den > 0) & (torch.atan2(torch.sqrt(x * x + y * y), z) < self.theta_max)
+        den = torch.where(den > 0, den, torch.ones_like(den))
+        return self._to_pixels(x / den, y / den), valid
+
+    def _unproject(self, uv):
+        a, xi = self.alpha, self.xi
+        mx, my = self._normalised(uv)
+        r2 = mx * mx + my * my
+        valid = torch.ones_like(r2, dtype=torch.bool) if a <= 0.5 else r2 <= 1 / (2 * a - 1)
+        mz = (1 - a * a * r2) / (a * torch.sqrt((1 - (2 * a - 1) * r2).clamp(min=0)) + 1 - a)
+        k = (mz * xi + torch.sqrt((mz * mz + (1 - xi * xi) * r2).clamp(min=0))) / (mz * mz + r2)
+        rays = torch.stack([k * mx, k * my, k * mz - xi], -1)
+        return rays / rays.norm(dim=-1, keepdim=True), valid
+
+
+# ---------------------------------------------------------------- cylindrical
+
+
+class Cylindrical(Camera):
+    """u = fx atan2(x, z) + cx, v = fy y / sqrt(x^2 + z^2) + cy; azimuth within (-pi, pi)."""
+
+    model, keys = "cylindrical", ("fx", "fy", "cx", "cy")
+
+    def _project(self, p):
+        x, y, z = p.unbind(-1)
+        rho = torch.sqrt(x * x + z * z)
+        valid = rho > 0
+        phi = torch.atan2(x, z)
+        return self._to_pixels(phi, _safe_div(y, rho)), valid
+
+    def _unproject(self, uv):
+        phi, t = self._normalised(uv)
+        rays = torch.stack([torch.sin(phi), t, torch.cos(phi)], -1)
+        return rays / torch.sqrt(1 + t * t)[..., None], phi.abs() < math.pi
+
+
+# ---------------------------------------------------------------- registry
+
+MODELS: dict[str, type[Camera]] = {
+    c.model: c
+    for c in (
+        Pinhole,
+        Equidistant,
+        Equisolid,
+        Stereographic,
+        KBTheta,
+        RadialPoly,
+        OpenCVFisheye,
+        UCM,
+        EUCM,
+        DoubleSphere,
+        Cylindrical,
+    )
+}
+
+
+def camera_from_dict(d: dict) -> Camera:
+    """A camera from a calibration dictionary: `model`, `width`, `height` and the model's keys."""
+    if not isinstance(d, dict):
+        raise CameraError(f"camera must be a mapping, got {type(d).__name__}")
+    d = dict(d)
+    name = d.pop("model", None)
+    if name is None:
+        raise CameraError("missing key 'model'")
+    if name not in MODELS:
+        raise CameraError(f"unknown model '{name}' (one of: {', '.join(MODELS)})")
+    for k in ("width", "height"):
+        if k not in d:
+            raise CameraError(f"{name}: missing key '{k}'")
+        if not float(d[k]).is_integer():
+            raise CameraError(f"{name}: '{k}' must be a whole number of pixels")
+    return MODELS[name](**d)

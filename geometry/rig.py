@@ -1,0 +1,283 @@
+"""Rigs: named cameras with camera-to-ego transforms.
+
+Ego frame ISO 8855 (x forward, y left, z up, origin on the ground under the rear axle); camera
+frame OpenCV (x right, y down, z optical axis). `cam_to_ego` maps camera coordinates to ego ones.
+
+Rig file (YAML or JSON)::
+
+    name: default
+    cameras:
+      front:
+        intrinsics: {model: equidistant, width: 480, height: 302, fx: ..., fy: ..., cx: ..., cy: ...}
+        extrinsics:
+          translation: [3.7, 0.0, 0.6]          # camera centre in the ego frame, metres
+          rotation: {yaw_deg: 0, pitch_deg: 20, roll_deg: 0}   # or quaternion: [qx, qy, qz, qw]
+
+`yaw_deg` turns the optical axis to the left of forward, `pitch_deg` tilts it down, `roll_deg`
+turns the image clockwise about the optical axis as seen from behind the camera. A quaternion
+[qx, qy, qz, qw] (scalar last, as WoodScape and scipy) is the camera-to-ego rotation itself.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections import OrderedDict
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from .cameras import Camera, CameraError, camera_from_dict
+
+# Columns: the OpenCV camera axes (x right, y down, z forward) of a camera looking along ego +x.
+FORWARD_CAMERA = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
+
+
+class RigError(ValueError):
+    """A rig file that cannot make a rig (names the file and field)."""
+
+
+def rot_x(a: float) -> np.ndarray:
+    c, s = math.cos(a), math.sin(a)
+    return np.array([[1, 0, 0], [0, c, -s], [0, s, c]], dtype=np.float64)
+
+
+def rot_y(a: float) -> np.ndarray:
+    c, s = math.cos(a), math.sin(a)
+    return np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]], dtype=np.float64)
+
+
+def rot_z(a: float) -> np.ndarray:
+    c, s = math.cos(a), math.sin(a)
+    return np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]], dtype=np.float64)
+
+
+def mount_rotation(yaw_deg: float, pitch_deg: float, roll_deg: float = 0.0) -> np.ndarray:
+    """Camera-to-ego rotation of a camera turned by yaw (left), pitched down and rolled."""
+    # roll about the camera's own z (optical) axis, applied in the camera frame
+    roll = np.array(
+        [[math.cos(math.radians(roll_deg)), -math.sin(math.radians(roll_deg)), 0],
+         [math.sin(math.radians(roll_deg)), math.cos(math.radians(roll_deg)), 0],
+         [0, 0, 1]]
+    )
+    return rot_z(math.radians(yaw_deg)) @ rot_y(math.radians(pitch_deg)) @ FORWARD_CAMERA @ roll
+
+
+def quat_to_matrix(q) -> np.ndarray:
+    """[qx, qy, qz, qw] (scalar last) -> 3x3 rotation matrix; normalises q."""
+    x, y, z, w = np.asarray(q, dtype=np.float64) / np.linalg.norm(q)
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+        ]
+    )
+
+
+def matrix_to_quat(m: np.ndarray) -> list[float]:
+    """3x3 rotation -> [qx, qy, qz, qw] with qw >= 0."""
+    m = np.asarray(m, dtype=np.float64)
+    t = np.trace(m)
+    if t > 0:
+        s = math.sqrt(t + 1.0) * 2
+        q = [(m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s, 0.25 * s]
+    else:
+        i = int(np.argmax(np.diag(m)))
+        j, k = (i + 1) % 3, (i + 2) % 3
+        s = math.sqrt(1.0 + m[i, i] - m[j, j] - m[k, k]) * 2
+        q = [0.0, 0.0, 0.0, (m[k, j] - m[j, k]) / s]
+        q[i] = 0.25 * s
+        q[j] = (m[j, i] + m[i, j]) / s
+        q[k] = (m[k, i] + m[i, k]) / s
+    q = np.asarray(q)
+    if q[3] < 0:
+        q = -q
+    return [float(v) for v in q]
+
+
+def make_transform(rotation: np.ndarray, translation) -> np.ndarray:
+    t = np.eye(4)
+    t[:3, :3] = rotation
+    t[:3, 3] = np.asarray(translation, dtype=np.float64)
+    return t
+
+
+@dataclass
+class RigCamera:
+    name: str
+    camera: Camera
+    cam_to_ego: np.ndarray  # (4, 4)
+
+    @property
+    def ego_to_cam(self) -> np.ndarray:
+        return np.linalg.inv(self.cam_to_ego)
+
+    def to_dict(self) -> dict:
+        return {
+            "intrinsics": self.camera.to_dict(),
+            "extrinsics": {
+                "translation": [float(v) for v in self.cam_to_ego[:3, 3]],
+                "quaternion": matrix_to_quat(self.cam_to_ego[:3, :3]),
+            },
+        }
+
+    def project_ego(self, points_ego):
+        """Ego-frame points (..., 3) -> (uv, valid); numpy or torch, as the camera."""
+        import torch
+
+        r = self.ego_to_cam
+        if isinstance(points_ego, torch.Tensor):
+            rt = torch.as_tensor(r, dtype=points_ego.dtype, device=points_ego.device)
+            p = points_ego @ rt[:3, :3].T + rt[:3, 3]
+        else:
+            p = np.asarray(points_ego) @ r[:3, :3].T + r[:3, 3]
+        return self.camera.project(p)
+
+    def rays_ego(self, uv=None):
+        """(origin (3,), unit ray directions in the ego frame (..., 3), valid) for pixels uv
+        (default: every pixel centre, (H, W))."""
+        import torch
+
+        if uv is None:
+            uv = self.camera.pixel_grid()
+        rays, valid = self.camera.unproject(uv)
+        if isinstance(rays, torch.Tensor):
+            r = torch.as_tensor(self.cam_to_ego[:3, :3], dtype=rays.dtype, device=rays.device)
+            return torch.as_tensor(self.cam_to_ego[:3, 3], dtype=rays.dtype), rays @ r.T, valid
+        return self.cam_to_ego[:3, 3].copy(), rays @ self.cam_to_ego[:3, :3].T, valid
+
+
+class Rig:
+    def __init__(self, cameras, name: str = "rig"):
+        self.name = name
+        self.cameras: "OrderedDict[str, RigCamera]" = OrderedDict((c.name, c) for c in cameras)
+
+    def __len__(self):
+        return len(self.cameras)
+
+    def __iter__(self):
+        return iter(self.cameras.values())
+
+    def __getitem__(self, name: str) -> RigCamera:
+        return self.cameras[name]
+
+    @property
+    def names(self) -> list[str]:
+        return list(self.cameras)
+
+    def to_dict(self) -> dict:
+        return {"name": self.name, "cameras": {n: c.to_dict() for n, c in self.cameras.items()}}
+
+    def save(self, path) -> None:
+        path = Path(path)
+        tmp = path.with_name(path.name + ".tmp")
+        text = json.dumps(self.to_dict(), indent=2) if path.suffix == ".json" else yaml.safe_dump(self.to_dict(), sort_keys=False)
+        tmp.write_text(text)
+        tmp.replace(path)
+
+    def map_cameras(self, fn) -> "Rig":
+        """A rig whose cameras are fn(camera) (e.g. resized), same extrinsics."""
+        return Rig([RigCamera(c.name, fn(c.camera), c.cam_to_ego.copy()) for c in self], self.name)
+
+
+def _extrinsics(e, where: str) -> np.ndarray:
+    if not isinstance(e, dict):
+        raise RigError(f"{where}: 'extrinsics' must be a mapping")
+    if "translation" not in e:
+        raise RigError(f"{where}.extrinsics: missing 'translation'")
+    t = e["translation"]
+    if not (isinstance(t, (list, tuple)) and len(t) == 3):
+        raise RigError(f"{where}.extrinsics.translation: must be a list of 3 numbers")
+    has_q, has_r = "quaternion" in e, "rotation" in e
+    if has_q == has_r:
+        raise RigError(f"{where}.extrinsics: give exactly one of 'quaternion' or 'rotation'")
+    try:
+        if has_q:
+            q = [float(v) for v in e["quaternion"]]
+            if len(q) != 4 or np.linalg.norm(q) < 1e-9:
+                raise ValueError
+            r = quat_to_matrix(q)
+        else:
+            rot = e["rotation"]
+            unknown = set(rot) - {"yaw_deg", "pitch_deg", "roll_deg"}
+            if unknown:
+                raise RigError(f"{where}.extrinsics.rotation: unknown key '{sorted(unknown)[0]}'")
+            r = mount_rotation(float(rot.get("yaw_deg", 0)), float(rot.get("pitch_deg", 0)), float(rot.get("roll_deg", 0)))
+        return make_transform(r, [float(v) for v in t])
+    except RigError:
+        raise
+    except (TypeError, ValueError, AttributeError):
+        key = "quaternion" if has_q else "rotation"
+        raise RigError(f"{where}.extrinsics.{key}: not a valid rotation") from None
+
+
+def rig_from_dict(d: dict, source: str = "rig") -> Rig:
+    if not isinstance(d, dict) or not isinstance(d.get("cameras"), dict) or not d["cameras"]:
+        raise RigError(f"{source}: 'cameras' must be a non-empty mapping of name -> camera")
+    cams = []
+    for name, c in d["cameras"].items():
+        where = f"{source}: cameras.{name}"
+        if not isinstance(c, dict) or "intrinsics" not in c or "extrinsics" not in c:
+            raise RigError(f"{where}: needs 'intrinsics' and 'extrinsics'")
+        try:
+            cam = camera_from_dict(c["intrinsics"])
+        except (CameraError, TypeError) as exc:
+            raise RigError(f"{where}.intrinsics: {exc}") from None
+        cams.append(RigCamera(str(name), cam, _extrinsics(c["extrinsics"], where)))
+    return Rig(cams, str(d.get("name", Path(source).stem)))
+
+
+def _read_mapping(path: Path):
+    try:
+        text = path.read_text()
+    except OSError as exc:
+        raise RigError(f"{path}: cannot read ({exc.strerror})") from None
+    try:
+        return json.loads(text) if path.suffix == ".json" else yaml.safe_load(text)
+    except (json.JSONDecodeError, yaml.YAMLError) as exc:
+        raise RigError(f"{path}: not valid {'JSON' if path.suffix == '.json' else 'YAML'} ({str(exc).splitlines()[0]})") from None
+
+
+def load_rig(path) -> Rig:
+    """A rig from a YAML/JSON rig file, or from a WoodScape calibration JSON (one camera)."""
+    path = Path(path)
+    d = _read_mapping(path)
+    if isinstance(d, dict) and "intrinsic" in d and "extrinsic" in d:
+        return Rig([woodscape_camera(d, str(path))])
+    return rig_from_dict(d, str(path))
+
+
+# ---------------------------------------------------------------- WoodScape
+
+
+def woodscape_camera(d: dict, source: str = "woodscape") -> RigCamera:
+    """A WoodScape calibration (their JSON: `intrinsic` radial_poly, `extrinsic` camera-to-vehicle
+    quaternion [qx, qy, qz, qw] and translation) as a RigCamera. cx = width/2 - 0.5 + cx_offset."""
+    try:
+        i, e = d["intrinsic"], d["extrinsic"]
+    except (KeyError, TypeError):
+        raise RigError(f"{source}: needs 'intrinsic' and 'extrinsic'") from None
+    need = ["width", "height", "cx_offset", "cy_offset", "aspect_ratio", "k1", "k2", "k3", "k4"]
+    for k in need:
+        if k not in i:
+            raise RigError(f"{source}: intrinsic: missing '{k}'")
+    if i.get("model", "radial_poly") != "radial_poly":
+        raise RigError(f"{source}: intrinsic.model: only 'radial_poly' is a WoodScape model, got {i['model']!r}")
+    w, h = float(i["width"]), float(i["height"])
+    cam = {
+        "model": "radial_poly",
+        "width": int(w),
+        "height": int(h),
+        "cx": w / 2 - 0.5 + float(i["cx_offset"]),
+        "cy": h / 2 - 0.5 + float(i["cy_offset"]),
+        "aspect_ratio": float(i["aspect_ratio"]),
+        "k": [float(i[f"k{n}"]) for n in range(1, 5)],
+    }
+    try:
+        camera = camera_from_dict(cam)
+    except CameraError as exc:
+        raise RigError(f"{source}: intrinsic: {exc}") from None
+    return RigCamera(str(d.get("name", "camera")), camera, _extrinsics(e, source))
