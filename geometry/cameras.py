@@ -107,26 +107,19 @@ def _invert_monotonic(f, df, y: torch.Tensor, t_max: float, guess: torch.Tensor)
     return t - (f(t) - y) / torch.where(d > 0, d, torch.ones_like(d))
 
 
-def _monotonic_limit(f_np, df_np, upper: float, cap: float) -> float:
-    """Largest T <= upper bound such that f is increasing on [0, T] and f(T) <= cap.
-
-    f_np / df_np: numpy callables on float64 arrays. Used once per camera, at construction.
-    """
-    t = np.linspace(0.0, upper, 200001)
-    d = df_np(t)
-    v = f_np(t)
-    stop = np.nonzero((d <= 0) | (v >= cap))[0]
-    stop = stop[stop > 0]
-    if len(stop) == 0:
-        return upper
-    lo, hi = t[stop[0] - 1], t[stop[0]]
-    for _ in range(200):
-        mid = 0.5 * (lo + hi)
-        if df_np(np.array([mid]))[0] <= 0 or f_np(np.array([mid]))[0] >= cap:
-            hi = mid
-        else:
-            lo = mid
-    return float(lo)
+def _monotonic_limit(coeffs, upper: float, cap: float = math.inf) -> float:
+    """Largest T <= upper such that the polynomial (coefficients from power 0) increases on
+    [0, T] and stays below cap there: the first positive real root of p' or of p - cap."""
+    p = np.polynomial.Polynomial(np.asarray(coeffs, dtype=np.float64))
+    limit = upper
+    for q in (p.deriv(), p - cap if math.isfinite(cap) else None):
+        if q is None or q.degree() < 1:
+            continue
+        r = q.roots()
+        r = r.real[(np.abs(r.imag) <= 1e-12 * np.maximum(1.0, np.abs(r.real))) & (r.real > 0)]
+        if len(r):
+            limit = min(limit, float(r.min()))
+    return limit
 
 
 # ---------------------------------------------------------------- base class
@@ -397,19 +390,11 @@ class _PolyRadial(RadialCamera):
 
     def _validate(self):
         super()._validate()
-        c = np.asarray(self._poly_coeffs(), dtype=np.float64)
-        f = lambda t: self._rho_np(c, t)  # noqa: E731
-        df = lambda t: self._drho_np(c, t)  # noqa: E731
-        if df(np.array([1e-9]))[0] <= 0:
+        c = np.asarray([0.0] * self.first_power + list(self._poly_coeffs()), dtype=np.float64)
+        if c[1] <= 0:
             raise CameraError(f"{self.model}: '{self.coeff_key}' must make rho increase from theta = 0")
-        self.theta_max = _monotonic_limit(f, df, math.pi, math.inf)
-        self._rho_max = float(f(np.array([self.theta_max]))[0])
-
-    def _rho_np(self, c, t):
-        return _poly(torch.from_numpy(c), torch.from_numpy(np.asarray(t, dtype=np.float64)), self.first_power).numpy()
-
-    def _drho_np(self, c, t):
-        return _poly_deriv(torch.from_numpy(c), torch.from_numpy(np.asarray(t, dtype=np.float64)), self.first_power).numpy()
+        self.theta_max = _monotonic_limit(c, math.pi)
+        self._rho_max = float(np.polynomial.polynomial.polyval(self.theta_max, c))
 
     @property
     def rho_max(self):
@@ -420,7 +405,7 @@ class _PolyRadial(RadialCamera):
 
     def theta_of_rho(self, rho):
         c = self._coeffs(rho)
-        d0 = float(self._drho_np(np.asarray(self._poly_coeffs()), np.array([0.0]))[0])
+        d0 = float(self._poly_coeffs()[0])  # rho'(0)
         return _invert_monotonic(
             lambda t: _poly(c, t, self.first_power),
             lambda t: _poly_deriv(c, t, self.first_power),
@@ -478,17 +463,12 @@ class KBTheta(Camera):
 
     def _validate(self):
         super()._validate()
-        c = torch.tensor(self.params["p"], dtype=torch.float64)
-        f = lambda r: _poly(c, torch.from_numpy(r)).numpy()  # noqa: E731
-        df = lambda r: _poly_deriv(c, torch.from_numpy(r)).numpy()  # noqa: E731
         if self.params["p"][0] <= 0:
             raise CameraError("kb_theta: 'p' must start with a positive p1")
-        # r where theta reaches pi, or theta stops increasing
-        upper = 1.0
-        while upper < 1e4 and f(np.array([upper]))[0] < math.pi and df(np.array([upper]))[0] > 0:
-            upper *= 2
-        self.r_max = _monotonic_limit(f, df, upper, math.pi)
-        self.theta_max = float(f(np.array([self.r_max]))[0])
+        c = np.asarray([0.0] + list(self.params["p"]), dtype=np.float64)
+        # r where theta stops increasing or reaches pi (p1 > 0 makes one of them exist)
+        self.r_max = _monotonic_limit(c, 1e6, math.pi)
+        self.theta_max = float(np.polynomial.polynomial.polyval(self.r_max, c))
 
     def _project(self, p):
         x, y, z = p.unbind(-1)
