@@ -22,14 +22,32 @@ $(VENV)/.done: requirements.txt Makefile
 	$(PYTHON) -c "import bpy, torch, OpenEXR, kornia, cv2; print('setup ok: bpy', bpy.app.version_string, 'torch', torch.__version__)"
 	@touch $@
 
+# Options: make dataset PRESET=small DATA=data/small WORKERS=2; make train CONFIG=...; make eval SPLIT=hard
+PRESET ?= small
+DATA ?= data/$(PRESET)
+CONFIG ?= configs/train/cpu_default.yaml
+RUN ?= runs/$(basename $(notdir $(CONFIG)))
+SPLIT ?= all
+WORKERS ?=
+
 test: setup
 	$(PYTHON) -m pytest -q tests
 
 bench: setup
 	$(PYTHON) -m bench.run
 
+dataset: setup
+	$(PYTHON) -m dataset_tools.generate --config configs/dataset/$(PRESET).yaml --out $(DATA) $(if $(WORKERS),--workers $(WORKERS))
+	$(PYTHON) -m dataset_tools.fuse $(DATA) $(if $(WORKERS),--workers $(WORKERS))
+
+train: setup
+	$(PYTHON) train.py --config $(CONFIG) --out $(RUN)
+
+eval: setup
+	$(PYTHON) eval.py --checkpoint $(RUN)/latest.pt --split $(SPLIT)
+
 demo: setup
-	$(PYTHON) -m demo
+	$(PYTHON) demo.py
 
 clean:
 	rm -rf $(VENV)

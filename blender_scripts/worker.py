@@ -1,0 +1,114 @@
+"""A rendering worker: `python -m blender_scripts.worker`, driven by dataset_tools.generate.
+
+Reads tasks as JSON lines on stdin; builds a task's scene once (kept while the next task is the
+same scene) and renders its frames with persistent data. Protocol lines on stdout start with
+MARK (Blender prints its own progress there too); the driver writes the manifest.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+import tempfile
+import time
+import traceback
+from pathlib import Path
+
+MARK = "@@bev "
+
+
+def say(**msg) -> None:
+    sys.stdout.write(MARK + json.dumps(msg) + "\n")
+    sys.stdout.flush()
+
+
+def frame_seed(scene_seed: int, frame: int) -> int:
+    import numpy as np
+
+    return int(np.random.default_rng([int(scene_seed), 4, int(frame)]).integers(0, 2**31 - 1))
+
+
+def run_task(task: dict, state: dict) -> None:
+    import bpy  # noqa: F401  (first import starts Blender)
+
+    from dataset_tools.exr import write_text_atomic
+    from geometry.bev import BevGrid
+    from geometry.rig import load_rig
+
+    from .build_scene import build_scene, set_frame
+    from .render_frame import configure_render, render_frame
+
+    recipe = task["recipe"]
+    key = json.dumps([recipe, task["rig"], task["fisheye_size"], task["topdown"], task["render"]], sort_keys=True)
+    t_build = 0.0
+    if state.get("key") != key:
+        t0 = time.perf_counter()
+        rig = load_rig(task["rig"])
+        if task["fisheye_size"]:
+            w, h = task["fisheye_size"]
+            rig = rig.map_cameras(lambda c: c.resized(w, h))
+        td = task["topdown"]
+        grid = BevGrid(-td["bound"], td["bound"], -td["bound"], td["bound"], 2 * td["bound"] / td["size"])
+        built = build_scene(recipe, rig, grid, td["height_m"], state["osl_dir"],
+                            task["render"].get("camera_method", "osl"))
+        configure_render(bpy.context.scene, task["render"]["samples"], task["render"]["denoise"],
+                         task["threads"], task["render"]["max_bounces"])
+        state.update(key=key, built=built, rig=rig, grid=grid)
+        t_build = time.perf_counter() - t0
+    built, rig = state["built"], state["rig"]
+    sizes = {rc.name: (rc.camera.width, rc.camera.height) for rc in rig}
+    for frame in task["frames"]:
+        t0 = time.perf_counter()
+        frame_dir = Path(task["out"]) / task["scene"] / f"{frame:06d}"
+        fm = set_frame(built, frame)
+        seed = frame_seed(recipe["seed"], frame)
+        timings = render_frame(built, frame_dir, sizes, task["topdown"]["size"], task["render"], seed,
+                               Path(state["tmp"]), fm)
+        w = built.weather
+        meta = {
+            "scene": task["scene"], "frame": frame, "split": task["split"], "family": recipe["family"],
+            "time_s": fm["time_s"],
+            "ego_pose": fm["ego_pose"],
+            "actors": fm["actors"],
+            "instances": {str(k): v for k, v in built.objects.items()},
+            "weather": w,
+            "sun": {"elevation_deg": w["sun_elevation_deg"], "azimuth_deg": w["sun_azimuth_deg"],
+                    "strength": w["sun_strength"]},
+            "seeds": {"scene": recipe["seed"], "cycles": seed},
+            "rig": rig.to_dict(),
+            "camera_method": task["render"].get("camera_method", "osl"),
+            "fit_errors_px": built.fit_errors,
+            "topdown": {"grid": state["grid"].to_dict(), "height_m": task["topdown"]["height_m"]},
+            "render": task["render"],
+            "recipe": recipe,
+        }
+        # frame_s: this frame's posing, renders and writes (meta.json's own write, ~1 ms, excluded)
+        meta["timings"] = dict(timings, build_s=t_build, frame_s=time.perf_counter() - t0)
+        t_build = 0.0
+        write_text_atomic(frame_dir / "meta.json", json.dumps(meta, indent=1))
+        files = sorted(p.name for p in frame_dir.iterdir() if not p.name.startswith("."))
+        say(event="frame", scene=task["scene"], frame=frame, files=files, timings=meta["timings"])
+
+
+def main() -> int:
+    state = {"tmp": tempfile.mkdtemp(prefix="bev_worker_")}
+    state["osl_dir"] = str(Path(state["tmp"]) / "osl")
+    say(event="ready")
+    for line in sys.stdin:
+        if not line.strip():
+            continue
+        task = json.loads(line)
+        try:
+            run_task(task, state)
+        except Exception as exc:  # the driver prints it as one line and stops
+            say(event="error", message=f"{type(exc).__name__}: {exc}", trace=traceback.format_exc())
+            return 1
+        say(event="task_done")
+    import shutil
+
+    shutil.rmtree(state["tmp"], ignore_errors=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

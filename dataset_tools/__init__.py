@@ -1,0 +1,1 @@
+"""Everything between renders and training: generation driver, EXR helpers, classes, labels, QA."""

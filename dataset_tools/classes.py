@@ -1,0 +1,82 @@
+"""Fine semantic classes of the rendered scenes and the map to the paper's training classes.
+
+Every material's `pass_index` is its fine class id, so Cycles' IndexMA pass is the fine semantic
+pass; every object's `pass_index` is its instance id (unique, > 0), so IndexOB is the instance
+pass. Background (sky) is 0 in both.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+# id, name, overhead occluder?, colour for pictures (RGB 0-255)
+FINE_CLASSES = [
+    (0, "unlabelled", False, (0, 0, 0)),  # sky / nothing hit
+    (1, "road", False, (128, 64, 128)),
+    (2, "lane_marking", False, (255, 255, 255)),  # lane lines, parking-bay lines
+    (3, "crosswalk", False, (255, 230, 120)),
+    (4, "stop_line", False, (255, 160, 40)),
+    (5, "sidewalk", False, (244, 35, 232)),
+    (6, "curb", False, (190, 150, 150)),
+    (7, "parking", False, (160, 100, 160)),  # parking-lot asphalt
+    (8, "vehicle", False, (0, 0, 142)),
+    (9, "building", False, (70, 70, 70)),
+    (10, "vegetation", False, (107, 142, 35)),  # trunks, bushes
+    (11, "canopy", True, (60, 200, 60)),  # tree crowns: overhead occluder
+    (12, "pole", False, (153, 153, 153)),  # poles, street lights
+    (13, "bridge", True, (150, 100, 100)),  # bridge / overpass deck: overhead occluder
+    (14, "pillar", False, (180, 165, 180)),  # bridge supports
+    (15, "terrain", False, (152, 251, 152)),  # grass, verge
+    (16, "barrier", False, (102, 102, 156)),  # guard rails, median walls
+]
+
+CLASS_IDS = {name: cid for cid, name, _, _ in FINE_CLASSES}
+CLASS_NAMES = {cid: name for cid, name, _, _ in FINE_CLASSES}
+NUM_FINE_CLASSES = len(FINE_CLASSES)
+OVERHEAD_OCCLUDERS = frozenset(cid for cid, _, occ, _ in FINE_CLASSES if occ)
+PALETTE = np.array([c for _, _, _, c in FINE_CLASSES], dtype=np.uint8)
+
+# The paper's training classes.
+TRAIN_CLASSES = ["invalid", "vehicle", "lane_marking", "street", "background"]
+
+DEFAULT_CLASS_MAP = {
+    "unlabelled": "invalid",
+    "road": "street",
+    "lane_marking": "lane_marking",
+    "crosswalk": "lane_marking",
+    "stop_line": "lane_marking",
+    "sidewalk": "background",
+    "curb": "background",
+    "parking": "street",
+    "vehicle": "vehicle",
+    "building": "background",
+    "vegetation": "background",
+    "canopy": "background",
+    "pole": "background",
+    "bridge": "background",
+    "pillar": "background",
+    "terrain": "background",
+    "barrier": "background",
+}
+
+
+def class_lut(class_map: dict | None = None, train_classes: list[str] | None = None) -> np.ndarray:
+    """Lookup table fine id -> training id (uint8), from a name -> name map (default the paper's)."""
+    class_map = DEFAULT_CLASS_MAP if class_map is None else class_map
+    train_classes = TRAIN_CLASSES if train_classes is None else train_classes
+    lut = np.zeros(NUM_FINE_CLASSES, dtype=np.uint8)
+    for fine, coarse in class_map.items():
+        if fine not in CLASS_IDS:
+            raise ValueError(f"class map: unknown fine class '{fine}'")
+        if coarse not in train_classes:
+            raise ValueError(f"class map: '{fine}' maps to unknown training class '{coarse}'")
+        lut[CLASS_IDS[fine]] = train_classes.index(coarse)
+    return lut
+
+
+def colorize(semantic: np.ndarray) -> np.ndarray:
+    """Fine semantic ids (H, W) -> RGB uint8 picture."""
+    return PALETTE[np.clip(semantic.astype(np.int64), 0, NUM_FINE_CLASSES - 1)]
+
+# Colours of the training classes for pictures (invalid, vehicle, lane marking, street, background).
+TRAIN_PALETTE = np.array([[0, 0, 0], [220, 40, 40], [250, 250, 250], [110, 110, 120], [70, 150, 70]], dtype=np.uint8)
