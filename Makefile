@@ -38,7 +38,7 @@ bench: setup
 
 dataset: setup
 	$(PYTHON) -m dataset_tools.generate --config configs/dataset/$(PRESET).yaml --out $(DATA) $(if $(WORKERS),--workers $(WORKERS))
-	$(PYTHON) -m dataset_tools.fuse $(DATA) $(if $(WORKERS),--workers $(WORKERS))
+	$(PYTHON) -m dataset_tools.fuse $(DATA) --config configs/dataset/$(PRESET).yaml $(if $(WORKERS),--workers $(WORKERS))
 
 train: setup
 	$(PYTHON) train.py --config $(CONFIG) --out $(RUN)

@@ -37,7 +37,7 @@ def main(argv=None) -> int:
     py = sys.executable
     t0 = time.time()
     step("1/4 render the scenes in Blender", [py, "-m", "dataset_tools.generate", "--config", a.dataset_config, "--out", a.data])
-    step("2/4 fuse occlusion-corrected BEV labels", [py, "-m", "dataset_tools.fuse", a.data])
+    step("2/4 fuse occlusion-corrected BEV labels", [py, "-m", "dataset_tools.fuse", a.data, "--config", a.dataset_config])
     step("3/4 train the LSS-fisheye model", [py, "train.py", "--config", a.train_config, "--out", a.run, "--set", f"data.root={a.data}"])
     ckpt = Path(a.run) / "latest.pt"
     step("4/4 evaluate on every split", [py, "eval.py", "--checkpoint", str(ckpt), "--split", "all", "--out", str(Path(a.run) / "eval")])

@@ -20,14 +20,9 @@ def run(*args, timeout=600):
 
 
 @pytest.fixture(scope="session")
-def tiny(tmp_path_factory):
-    """The tiny preset rendered and fused (read-only for the tests: copy before changing)."""
-    out = tmp_path_factory.mktemp("tiny") / "ds"
-    r = run("dataset_tools.generate", "--config", "configs/dataset/tiny.yaml", "--out", str(out), "--no-progress")
-    assert r.returncode == 0, r.stderr[-2000:]
-    r = run("dataset_tools.fuse", str(out))
-    assert r.returncode == 0, r.stderr[-2000:]
-    return out
+def tiny(tiny_dataset):
+    """The tiny preset rendered and fused (conftest; read-only for the tests: copy before changing)."""
+    return tiny_dataset
 
 
 def copy(tiny, tmp_path):

@@ -43,10 +43,8 @@ def _frames(out):
 
 
 @pytest.fixture(scope="session")
-def scene_tiny_run(tmp_path_factory):
-    out = tmp_path_factory.mktemp("tiny")
-    _generate(TINY, out)
-    return out
+def scene_tiny_run(tiny_rendered):
+    return tiny_rendered
 
 
 @pytest.fixture(scope="session")

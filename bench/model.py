@@ -1,0 +1,260 @@
+"""Benchmarks of the model (issue 5): `run() -> {figure: value}`, goals in GOALS.
+
+- splat: our precomputed-index splat against LSS's cumsum-trick voxel pooling (written here from
+  the LSS paper's description) and against a naive scatter, forward + backward, on the same inputs
+  (cpu_default sizes, the default rig's real lift geometry); equal results checked.
+- training samples/s and inference ms per four-camera frame for cpu_default, and peak memory
+  (each measured in a fresh process, on a constructed data set of 480x302 images).
+
+    PYTHONPATH=. python -m bench.model
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import torch
+
+ROOT = Path(__file__).resolve().parents[1]
+GOALS = {
+    "splat_speedup_vs_cumsum": ">= 5",
+    "train_samples_per_s": ">= 4",
+    "infer_ms_per_frame": "<= 60",
+}
+
+
+# ----------------------------------------------------------------- LSS's cumsum trick
+
+
+class QuickCumsum(torch.autograd.Function):
+    """LSS voxel pooling: points sorted by cell; a cumulative sum over all of them, then the
+    difference of the cumulative sums at the last point of each cell is that cell's sum."""
+
+    @staticmethod
+    def forward(ctx, x, ranks):
+        x = x.cumsum(0)
+        kept = torch.ones(x.shape[0], device=x.device, dtype=torch.bool)
+        kept[:-1] = ranks[1:] != ranks[:-1]
+        x, ranks_out = x[kept], ranks[kept]
+        x = torch.cat((x[:1], x[1:] - x[:-1]))
+        back = torch.cumsum(kept, 0)
+        back[kept] -= 1
+        ctx.save_for_backward(back)
+        return x, ranks_out
+
+    @staticmethod
+    def backward(ctx, grad_x, grad_ranks):
+        (back,) = ctx.saved_tensors
+        return grad_x[back], None
+
+
+def _frustum(depth, context, point_cell, cells, sum_cameras):
+    b, n, d, h, w = point_cell.shape
+    c = context.shape[2]
+    x = depth.unsqueeze(-1) * context.permute(0, 1, 3, 4, 2).unsqueeze(2)  # (B, N, D, H, W, C)
+    pc = point_cell.reshape(-1)
+    kept = pc >= 0
+    bn = torch.arange(b * n).repeat_interleave(d * h * w)[kept]
+    grid = (bn // n if sum_cameras else bn) * cells + pc[kept]
+    rows = b * (1 if sum_cameras else n) * cells
+    return x.reshape(-1, c)[kept], grid, rows
+
+
+def cumsum_pool(depth, context, point_cell, cells, sum_cameras=True):
+    """LSS: build the full (B, N, D, H, W, C) frustum features, keep the points inside the grid,
+    rank them by (batch, cell) (LSS pools all cameras of a sample into one grid), sort, cumsum
+    trick, write the cell sums into the grid."""
+    x, ranks, rows = _frustum(depth, context, point_cell, cells, sum_cameras)
+    order = ranks.argsort()
+    x, ranks = x[order], ranks[order]
+    x, ranks = QuickCumsum.apply(x, ranks)
+    out = x.new_zeros(rows, x.shape[1])
+    out[ranks] = x
+    return out
+
+
+def naive_pool(depth, context, point_cell, cells, sum_cameras=True):
+    """Naive scatter: the full frustum features, masked, index_add_ into the grid (autograd)."""
+    x, grid, rows = _frustum(depth, context, point_cell, cells, sum_cameras)
+    return x.new_zeros(rows, x.shape[1]).index_add(0, grid, x)
+
+
+def _time(fn, repeat=5):
+    fn()  # warm-up
+    ts = []
+    for _ in range(repeat):
+        t = time.perf_counter()
+        fn()
+        ts.append(time.perf_counter() - t)
+    return sorted(ts)[len(ts) // 2]
+
+
+def _time_interleaved(fns: dict, repeat=7, clock=time.process_time) -> dict:
+    """Median seconds of each function, run round-robin so that load from other processes on a
+    shared machine hits every contender alike; timed by this process's CPU time (all threads),
+    which other processes' load disturbs far less than wall time."""
+    for f in fns.values():
+        f()
+    ts = {k: [] for k in fns}
+    for _ in range(repeat):
+        for k, f in fns.items():
+            t = clock()
+            f()
+            ts[k].append(clock() - t)
+    return {k: sorted(v)[len(v) // 2] for k, v in ts.items()}
+
+
+def bench_splat(batch=4, sum_cameras=True) -> dict:
+    """sum_cameras=True pools the cameras of a sample into one grid, as LSS's voxel pooling does;
+    False keeps one grid per camera (what the learnable poolings need)."""
+    from geometry.rig import load_rig
+    from model import build_model
+    from model.config import load_config
+    from model.splat import splat, splat_index
+
+    cfg = load_config(ROOT / "configs/train/cpu_default.yaml")
+    model = build_model(cfg, load_rig(ROOT / "configs/rigs/default.yaml"))
+    pc = model.nominal_point_cell[None].expand(batch, -1, -1, -1, -1).contiguous()
+    b, n, d, h, w = pc.shape
+    c = cfg["model"]["context_channels"]
+    cells = model.grid.rows * model.grid.cols
+    g = torch.Generator().manual_seed(0)
+    depth0 = torch.rand(b, n, d, h, w, generator=g).softmax(2)
+    ctx0 = torch.randn(b, n, c, h, w, generator=g)
+    rows = b * (1 if sum_cameras else n) * cells
+    grad = torch.randn(rows, c, generator=g)
+    index = splat_index(pc, cells, sum_cameras)  # precomputed once per rig (per batch when augmenting)
+
+    def fwd_bwd(fn):
+        dd, cc = depth0.clone().requires_grad_(), ctx0.clone().requires_grad_()
+        out = fn(dd, cc).reshape(rows, c)
+        out.backward(grad)
+        return out.detach(), dd.grad, cc.grad
+
+    ours = lambda dd, cc: splat(dd, cc, index)
+    ours_with_index = lambda dd, cc: splat(dd, cc, splat_index(pc, cells, sum_cameras))
+    cums = lambda dd, cc: cumsum_pool(dd, cc, pc, cells, sum_cameras)
+    naive = lambda dd, cc: naive_pool(dd, cc, pc, cells, sum_cameras)
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)  # one thread: no OpenMP spin-waiting to distort times on a shared machine
+    ref = fwd_bwd(ours)
+    diffs = {}
+    for name, fn in (("cumsum", cums), ("naive", naive)):
+        other = fwd_bwd(fn)
+        diffs[name] = max(float((a - r).abs().max()) for a, r in zip(other, ref))
+    t = _time_interleaved({"ours": lambda: fwd_bwd(ours), "ours_index": lambda: fwd_bwd(ours_with_index),
+                           "cumsum": lambda: fwd_bwd(cums), "naive": lambda: fwd_bwd(naive)})
+    torch.set_num_threads(threads)
+    p = "splat" if sum_cameras else "splat_per_camera"
+    return {
+        f"{p}_points": int((pc >= 0).sum()),
+        f"{p}_ms_ours": 1000 * t["ours"],
+        f"{p}_ms_ours_incl_index": 1000 * t["ours_index"],
+        f"{p}_ms_cumsum": 1000 * t["cumsum"],
+        f"{p}_ms_naive": 1000 * t["naive"],
+        f"{p}_speedup_vs_cumsum": t["cumsum"] / t["ours"],
+        f"{p}_speedup_vs_naive": t["naive"] / t["ours"],
+        f"{p}_max_abs_diff_cumsum": diffs["cumsum"],
+        f"{p}_max_abs_diff_naive": diffs["naive"],
+    }
+
+
+# ----------------------------------------------------------------- training / inference (subprocess)
+
+
+def _peak_rss_mb() -> float:
+    """This process's peak resident memory (VmHWM; unlike ru_maxrss it does not inherit the
+    parent's peak across fork + exec)."""
+    for line in Path("/proc/self/status").read_text().splitlines():
+        if line.startswith("VmHWM:"):
+            return int(line.split()[1]) / 1024
+    import resource
+
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+
+
+def _child_train(data_root: str, steps: int) -> dict:
+    from torch.utils.data import DataLoader
+
+    from dataset_tools.reader import DatasetIndex
+    from model import build_model
+    from model.config import load_config
+    from model.data import BevDataset
+    from model.losses import class_weights, total_loss
+    from train import EpochBatches
+
+    cfg = load_config(ROOT / "configs/train/cpu_default.yaml", {"data": {"root": data_root}})
+    t = cfg["train"]
+    idx = DatasetIndex(data_root)
+    ds = BevDataset(idx, "train", cfg, train=True)
+    torch.manual_seed(0)
+    model = build_model(cfg, idx.rig)
+    opt = torch.optim.Adam(model.parameters(), lr=t["lr"])
+    alpha = class_weights(cfg["loss"]["class_weights"])
+    loader = DataLoader(ds, batch_sampler=EpochBatches(len(ds), t["batch_size"], 0, 0, 0, 1),
+                        num_workers=cfg["data"]["num_workers"], generator=torch.Generator())
+    it = iter(loader)
+    times = []
+    for k in range(steps + 1):
+        t0 = time.perf_counter()
+        batch = next(it)
+        out = model(batch["images"], batch["point_cell"], batch["intrinsics"])
+        loss, _ = total_loss(out, batch, alpha)
+        opt.zero_grad()
+        loss.backward()
+        torch.nn.utils.clip_grad_norm_(model.parameters(), t["grad_clip"])
+        opt.step()
+        if k:  # the first step includes the loader's start
+            times.append(time.perf_counter() - t0)
+    return {"train_samples_per_s": t["batch_size"] * len(times) / sum(times),
+            "train_peak_rss_mb": _peak_rss_mb()}
+
+
+def _child_infer(repeat: int) -> dict:
+    from geometry.rig import load_rig
+    from model import build_model
+    from model.config import load_config
+
+    cfg = load_config(ROOT / "configs/train/cpu_default.yaml")
+    torch.manual_seed(0)
+    model = build_model(cfg, load_rig(ROOT / "configs/rigs/default.yaml")).eval()
+    w, h = cfg["data"]["input_size"]
+    x = torch.rand(1, 4, 3, h, w)
+    with torch.inference_mode():
+        ms = 1000 * _time(lambda: model(x), repeat)
+    return {"infer_ms_per_frame": ms, "infer_peak_rss_mb": _peak_rss_mb()}
+
+
+def _in_child(fn: str, *args) -> dict:
+    code = f"import json, bench.model as m; print('@@' + json.dumps(m.{fn}(*{args!r})))"
+    r = subprocess.run([sys.executable, "-c", code], cwd=ROOT, env=dict(os.environ, PYTHONPATH=str(ROOT)),
+                       capture_output=True, text=True, timeout=1200)
+    if r.returncode:
+        raise RuntimeError(f"bench.model.{fn} failed: {r.stderr.strip().splitlines()[-1] if r.stderr.strip() else r.returncode}")
+    return json.loads([ln for ln in r.stdout.splitlines() if ln.startswith("@@")][-1][2:])
+
+
+def run(train_steps: int = 12, infer_repeat: int = 20) -> dict:
+    from model.toy_data import write_toy_dataset
+
+    res = {"threads": torch.get_num_threads(), "load_average_1min_at_start": os.getloadavg()[0]}
+    res.update(bench_splat(sum_cameras=True))
+    res.update(bench_splat(sum_cameras=False))
+    with tempfile.TemporaryDirectory() as tmp:
+        root = write_toy_dataset(Path(tmp) / "toy", frames=4 * (train_steps + 1), splits=("train",))
+        res.update(_in_child("_child_train", str(root), train_steps))
+    res.update(_in_child("_child_infer", infer_repeat))
+    res["goals"] = GOALS
+    return res
+
+
+if __name__ == "__main__":
+    out = run()
+    for k, v in out.items():
+        print(f"{k:32s} {v:.4g}" if isinstance(v, float) else f"{k:32s} {v}")

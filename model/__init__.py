@@ -1,0 +1,5 @@
+"""LSS-fisheye BEV segmentation model (see docs/model.md)."""
+
+from .checkpoint import CheckpointError, build_model, load_checkpoint, save_checkpoint
+
+__all__ = ["build_model", "load_checkpoint", "save_checkpoint", "CheckpointError"]

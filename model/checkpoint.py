@@ -1,0 +1,61 @@
+"""build_model(cfg, rig) and checkpoints that carry their config and rig."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import torch
+
+from geometry.bev import BevGrid
+from geometry.rig import Rig, rig_from_dict
+
+
+class CheckpointError(ValueError):
+    pass
+
+
+def model_grid(cfg: dict) -> BevGrid:
+    return BevGrid.from_dict(cfg["data"]["grid"])
+
+
+def build_model(cfg: dict, rig: Rig, num_classes: int = 5):
+    """The model of a validated config for a rig (cameras at their native image size)."""
+    from .lss import LSSFisheye, input_rig
+
+    return LSSFisheye(cfg["model"], input_rig(rig, cfg["data"]["input_size"]), model_grid(cfg), cfg["data"]["input_size"], num_classes)
+
+
+def save_checkpoint(path, state: dict) -> None:
+    """Atomic: write a temp file, then rename."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    torch.save(state, tmp)
+    os.replace(tmp, path)
+
+
+def _model_part(cfg: dict) -> dict:
+    # what decides the network and its inputs; training knobs may differ
+    return {"model": cfg["model"], "input_size": list(cfg["data"]["input_size"]), "grid": cfg["data"]["grid"]}
+
+
+def load_checkpoint(path, expect_config: dict | None = None, map_location="cpu"):
+    """-> (model, config, checkpoint dict). With expect_config, refuses (CheckpointError) a
+    checkpoint whose model, input size or grid differ from that config's."""
+    path = Path(path)
+    try:
+        ckpt = torch.load(path, map_location=map_location, weights_only=False)
+    except Exception as exc:  # torch.load raises many kinds (pickle, zip, runtime) on a bad file
+        raise CheckpointError(f"{path}: cannot read checkpoint ({type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''})") from None
+    for k in ("config", "model", "rig"):
+        if not isinstance(ckpt, dict) or k not in ckpt:
+            raise CheckpointError(f"{path}: not a checkpoint of train.py (missing '{k}')")
+    cfg = ckpt["config"]
+    if expect_config is not None and _model_part(expect_config) != _model_part(cfg):
+        diff = [k for k in _model_part(cfg) if _model_part(cfg)[k] != _model_part(expect_config)[k]]
+        raise CheckpointError(f"{path}: checkpoint is from another config ({', '.join(diff)} differ)")
+    rig = rig_from_dict(ckpt["rig"], f"{path}: rig")
+    model = build_model(cfg, rig, ckpt.get("num_classes", 5))
+    model.load_state_dict(ckpt["model"])
+    return model, cfg, ckpt

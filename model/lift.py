@@ -1,0 +1,90 @@
+"""Lift: every feature pixel's ray (from geometry) times ray-distance bins -> BEV cells.
+
+Depth in a fisheye is the distance along the ray (z-depth is meaningless past 90 degrees off axis),
+so bin k puts a feature pixel's point at origin + d_k * ray, with the unit ray from `geometry`.
+
+Feature-map pixel convention: a stride-s feature pixel (i, j) covers image pixel centre
+(s j + (s - 1) / 2, s i + (s - 1) / 2); that is exactly the pixel grid of `camera.resized(W/s, H/s)`
+(geometry's resize keeps pixel centres: u' = (u + 0.5) / s - 0.5), so the lift unprojects the
+pixel grid of that camera. The image encoder is built so its feature pixels are centred there
+(see `model.encoder`).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import torch
+
+from geometry.bev import BevGrid
+from geometry.rig import Rig, RigCamera
+
+
+def depth_bins(d_min: float, d_max: float, bins: int, spacing: str = "linear") -> np.ndarray:
+    """Bin centres (metres along the ray): `linear` (uniform) or `log` (uniform in log distance)."""
+    if not 0 < d_min < d_max or bins < 1:
+        raise ValueError(f"depth bins: need 0 < min < max and bins >= 1, got {d_min}, {d_max}, {bins}")
+    if spacing == "linear":
+        edges = np.linspace(d_min, d_max, bins + 1)
+        return (edges[:-1] + edges[1:]) / 2
+    if spacing == "log":
+        edges = np.geomspace(d_min, d_max, bins + 1)
+        return np.sqrt(edges[:-1] * edges[1:])
+    raise ValueError(f"depth bins: spacing must be 'linear' or 'log', got {spacing!r}")
+
+
+def feature_camera(camera, stride: int, image_size: tuple[int, int]):
+    """The camera of the stride-s feature map of a (W, H) image padded at right/bottom to a
+    multiple of the stride (padding keeps the principal point)."""
+    w, h = image_size
+    wp, hp = math.ceil(w / stride) * stride, math.ceil(h / stride) * stride
+    return camera.cropped(0, 0, wp, hp).resized(wp // stride, hp // stride)
+
+
+def camera_point_cells(rc: RigCamera, stride: int, image_size, bins: np.ndarray, grid: BevGrid, z_range) -> np.ndarray:
+    """(D, h, w) int64 BEV cell index (row * cols + col) of every lifted point of one camera whose
+    image is `image_size` (rc.camera must be that image's camera); -1 outside the grid, outside the
+    z range, on padding, or where the ray is invalid."""
+    fcam = feature_camera(rc.camera, stride, image_size)
+    origin, rays, valid = RigCamera(rc.name, fcam, rc.cam_to_ego).rays_ego()
+    origin, rays, valid = np.asarray(origin), np.asarray(rays), np.asarray(valid)
+    # feature pixels whose centre lies on the real image, not on the padding
+    w, h = image_size
+    uv = fcam.pixel_grid().numpy()
+    centre_u, centre_v = stride * uv[..., 0] + (stride - 1) / 2, stride * uv[..., 1] + (stride - 1) / 2
+    valid = valid & (centre_u <= w - 0.5) & (centre_v <= h - 0.5)
+    pts = origin + bins[:, None, None, None] * rays[None]  # (D, h, w, 3)
+    row, col, inside = grid.cell_of(pts)
+    ok = inside & valid[None] & (pts[..., 2] >= z_range[0]) & (pts[..., 2] <= z_range[1])
+    return np.where(ok, row * grid.cols + col, -1).astype(np.int64)
+
+
+def rig_point_cells(rig: Rig, stride: int, image_size, bins, grid: BevGrid, z_range) -> torch.Tensor:
+    """(N, D, h, w) for every camera of a rig whose cameras all have image size `image_size`."""
+    return torch.from_numpy(np.stack([camera_point_cells(rc, stride, image_size, bins, grid, z_range) for rc in rig]))
+
+
+INTRINSIC_RADII = (0.25, 0.5, 0.75, 1.0)
+INTRINSICS_DIM = 4 + 2 * len(INTRINSIC_RADII)
+
+
+def intrinsics_descriptor(camera) -> np.ndarray:
+    """A fixed-length description of a camera's intrinsics that means the same for every model
+    (for the intrinsics-embedding pooling): the effective focal lengths at the principal point
+    (one pixel over the angle it spans, right and down) over W and H, cx/W, cy/H (together the
+    normalised 3x3 matrix), and the angle off the optical axis, in radians, of the pixels at 1/4 ..
+    4/4 of the half width right of the principal point and of the half height below it (how the
+    lens maps radius to angle)."""
+    w, h = camera.width, camera.height
+    cx, cy = camera.cx, camera.cy
+    uv = [(cx + 1.0, cy), (cx, cy + 1.0)]
+    uv += [(cx + t * w / 2, cy) for t in INTRINSIC_RADII] + [(cx, cy + t * h / 2) for t in INTRINSIC_RADII]
+    rays, valid = camera.unproject(np.asarray(uv, dtype=np.float64))
+    theta = np.where(valid, np.arccos(np.clip(rays[:, 2], -1, 1)), math.pi)
+    fx, fy = 1.0 / max(theta[0], 1e-9), 1.0 / max(theta[1], 1e-9)
+    return np.concatenate([[fx / w, fy / h, cx / w, cy / h], theta[2:]]).astype(np.float32)
+
+
+def rig_intrinsics(rig: Rig) -> torch.Tensor:
+    return torch.from_numpy(np.stack([intrinsics_descriptor(rc.camera) for rc in rig]))

@@ -1,0 +1,56 @@
+"""Losses of the paper's eqs. 5-7.
+
+semantic (eq. 5): per cell -p(o) * alpha_y * log q_y, the cross entropy of the true class y weighted
+by the cell's true visibility p(o) and the class weight alpha_y; cells of class 0 (invalid) get no
+loss. Each sample's loss is the weighted sum divided by the sum of the weights (a weighted mean, as
+torch's weighted cross entropy), and the batch loss is the mean over samples, so that a batch split
+across DDP processes gives the same gradient as the whole batch in one.
+occlusion (eq. 6): binary cross entropy of the predicted visibility against the true p(o) (soft
+target by default; `binary` thresholds it at 0.5), mean over cells, then over samples.
+total (eq. 7): semantic + lambda * occlusion.
+"""
+
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+
+CLASS_WEIGHTS = {"uniform": [1.0, 1.0, 1.0, 1.0], "paper": [13.0, 3.0, 1.0, 1.0]}  # vehicle, lane, street, background
+
+
+def class_weights(spec) -> torch.Tensor:
+    """'uniform', 'paper' (13-3-1-1) or a list of one weight per training class after invalid."""
+    if isinstance(spec, str):
+        if spec not in CLASS_WEIGHTS:
+            raise ValueError(f"class weights must be {' or '.join(CLASS_WEIGHTS)} or a list, got {spec!r}")
+        spec = CLASS_WEIGHTS[spec]
+    return torch.tensor([float(v) for v in spec])
+
+
+def semantic_loss(logits, target, visibility, alpha, use_visibility: bool = True):
+    """logits (B, K, X, Y) over classes 1..K; target (B, X, Y) long in 0..K (0 = invalid);
+    visibility (B, X, Y) in [0, 1]; alpha (K,)."""
+    if logits.shape[1] != alpha.numel():
+        raise ValueError(f"semantic loss: {logits.shape[1]} class logits but {alpha.numel()} class weights")
+    valid = target > 0
+    logp = F.log_softmax(logits, 1)
+    cls = (target - 1).clamp(min=0)
+    nll = -logp.gather(1, cls[:, None])[:, 0]
+    w = alpha.to(logits)[cls] * valid
+    if use_visibility:
+        w = w * visibility
+    per_sample = (w * nll).sum((1, 2)) / w.sum((1, 2)).clamp(min=1e-6)
+    return per_sample.mean()
+
+
+def occlusion_loss(logits, visibility, target: str = "soft"):
+    """logits (B, X, Y) of visibility; visibility (B, X, Y) true p(o)."""
+    t = visibility if target == "soft" else (visibility >= 0.5).to(visibility)
+    return F.binary_cross_entropy_with_logits(logits, t, reduction="none").mean((1, 2)).mean()
+
+
+def total_loss(out: dict, batch: dict, alpha, lam: float = 1.0, use_visibility: bool = True, occ_target: str = "soft"):
+    """-> (total, {'semantic': .., 'occlusion': ..}) detached parts for logging."""
+    sem = semantic_loss(out["semantic"], batch["semantic"], batch["visibility"], alpha, use_visibility)
+    occ = occlusion_loss(out["occlusion"], batch["visibility"], occ_target)
+    return sem + lam * occ, {"semantic": sem.detach(), "occlusion": occ.detach()}

@@ -1,0 +1,100 @@
+"""LSS-fisheye: image encoder -> lift (ray-distance bins x context) -> splat per camera ->
+camera pooling -> BEV encoder -> semantic and occlusion heads."""
+
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from geometry.bev import BevGrid
+from geometry.rig import Rig
+
+from .augment import base_transform, transform_camera
+from .bev_encoder import BevEncoder
+from .encoder import ImageEncoder
+from .lift import depth_bins, rig_intrinsics, rig_point_cells
+from .pooling import make_pooling
+from .splat import splat, splat_count, splat_index
+
+IMAGE_MEAN, IMAGE_STD = 0.45, 0.225
+
+
+def input_rig(rig: Rig, input_size) -> Rig:
+    """The rig as the model sees it without augmentation: each camera resized/cropped to input_size."""
+    return Rig([transform_camera(rc, base_transform(rc.camera, input_size)) for rc in rig], rig.name)
+
+
+class LSSFisheye(nn.Module):
+    def __init__(self, mcfg: dict, rig: Rig, grid: BevGrid, input_size, num_classes: int = 5):
+        """mcfg: the config's `model` section; rig: the cameras at the input size (`input_rig`)."""
+        super().__init__()
+        self.grid, self.input_size, self.camera_names = grid, tuple(input_size), rig.names
+        self.stride = mcfg["stride"]
+        d = mcfg["depth"]
+        self.register_buffer("bins", torch.from_numpy(depth_bins(d["min"], d["max"], d["bins"], d["spacing"])).float(), persistent=False)
+        self.z_range = tuple(mcfg["z_range"])
+        c = mcfg["context_channels"]
+        self.encoder = ImageEncoder(mcfg["encoder"]["widths"], mcfg["encoder"]["blocks"], self.stride, d["bins"], c,
+                                    mcfg["norm"], mcfg["dropout"])
+        # nominal geometry (no augmentation): precomputed once per rig
+        pc = rig_point_cells(rig, self.stride, self.input_size, self.bins.double().numpy(), grid, self.z_range)
+        self.register_buffer("nominal_point_cell", pc, persistent=False)
+        self.register_buffer("nominal_intrinsics", rig_intrinsics(rig), persistent=False)
+        self.pooling_kind = mcfg["pooling"]
+        cover = splat_count(splat_index(pc[None], grid.rows * grid.cols)).view(len(rig), *grid.shape)
+        self.pool = make_pooling(self.pooling_kind, len(rig), c, grid.shape, cover)
+        self.bev = BevEncoder(c, mcfg["bev_encoder"]["widths"], mcfg["bev_encoder"]["blocks"], mcfg["norm"], mcfg["dropout"])
+        self.semantic_head = nn.Conv2d(self.bev.out_channels, num_classes - 1, 1)  # classes 1..K-1; 0 is invalid
+        self.occlusion_head = nn.Conv2d(self.bev.out_channels, 1, 1)  # logit of visibility p(o)
+        self._index_cache = None
+
+    def point_cells(self, rig: Rig) -> torch.Tensor:
+        """(N, D, h, w) for another rig at the input size (e.g. an augmented one)."""
+        return rig_point_cells(rig, self.stride, self.input_size, self.bins.double().numpy(), self.grid, self.z_range)
+
+    def _index(self, point_cell, batch: int):
+        cells = self.grid.rows * self.grid.cols
+        summed = self.pooling_kind == "sum"
+        if point_cell is not None:
+            return splat_index(point_cell, cells, summed)
+        key = (batch, self.nominal_point_cell.device)
+        if self._index_cache is None or self._index_cache[0] != key:
+            pc = self.nominal_point_cell[None].expand(batch, *self.nominal_point_cell.shape)
+            self._index_cache = (key, splat_index(pc.contiguous(), cells, summed))
+        return self._index_cache[1]
+
+    def lift(self, images):
+        """images (B, N, 3, H, W) in [0, 1] -> depth probabilities (B, N, D, h, w), context (B, N, C, h, w)."""
+        b, n, _, h, w = images.shape
+        x = (images.flatten(0, 1) - IMAGE_MEAN) / IMAGE_STD
+        ts = self.encoder.total_stride
+        x = F.pad(x, (0, -w % ts, 0, -h % ts))  # right/bottom padding keeps the principal point
+        depth_logits, ctx = self.encoder(x)
+        hs, ws = -(-h // self.stride), -(-w // self.stride)
+        depth = depth_logits[..., :hs, :ws].softmax(1)
+        ctx = ctx[..., :hs, :ws]
+        return depth.view(b, n, *depth.shape[1:]), ctx.reshape(b, n, *ctx.shape[1:])
+
+    def forward(self, images, point_cell=None, intrinsics=None):
+        """images (B, N, 3, H, W) in [0, 1] at the input size; point_cell (B, N, D, h, w) and
+        intrinsics (B, N, 12) for augmented cameras (default: the rig's nominal ones).
+        -> {'semantic': (B, K-1, X, Y) logits, 'occlusion': (B, X, Y) visibility logits}."""
+        if images.ndim != 5 or images.shape[1] != len(self.camera_names) or tuple(images.shape[-1:-3:-1]) != self.input_size:
+            raise ValueError(f"model: images must be (B, {len(self.camera_names)}, 3, {self.input_size[1]}, {self.input_size[0]}), got {tuple(images.shape)}")
+        b, n = images.shape[:2]
+        depth, ctx = self.lift(images)
+        if point_cell is not None and point_cell.shape[2:] != depth.shape[2:]:
+            raise ValueError(f"model: point_cell {tuple(point_cell.shape)} does not match the features {tuple(depth.shape)}")
+        index = self._index(point_cell, b)
+        feats = splat(depth, ctx, index)
+        x_, y_ = self.grid.shape
+        if self.pooling_kind == "sum":
+            pooled = self.pool(feats.view(b, x_, y_, -1))
+        else:
+            cover = splat_count(index).view(b, n, x_, y_) if self.pooling_kind == "intrinsics_embedding" else None
+            if intrinsics is None:
+                intrinsics = self.nominal_intrinsics[None].expand(b, -1, -1)
+            pooled = self.pool(feats.view(b, n, x_, y_, -1), cover, intrinsics)
+        y = self.bev(pooled)
+        return {"semantic": self.semantic_head(y), "occlusion": self.occlusion_head(y)[:, 0]}

@@ -1,0 +1,298 @@
+"""Model pieces: lift vs geometry, camera-moving augmentation, pooling, losses, metrics,
+config validation and checkpoints."""
+
+import math
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+import torch
+
+from geometry.bev import BevGrid
+from geometry.rig import RigCamera, load_rig
+from model import CheckpointError, build_model, load_checkpoint, save_checkpoint
+from model.augment import ViewTransform, base_transform, can_rotate, transform_camera, warp_image
+from model.config import ConfigError, validate
+from model.lift import camera_point_cells, depth_bins, feature_camera
+from model.losses import class_weights, occlusion_loss, semantic_loss
+from model.metrics import BevMetrics, confusion
+from model.splat import splat
+
+GRID = BevGrid(res=0.25)
+
+
+@pytest.mark.parametrize("rig_path", ["configs/rigs/default.yaml", "configs/rigs/mixed.yaml"])
+def test_lift_agrees_with_geometry(rig_path):
+    """A point placed at a bin's distance along a pixel's ray (unprojected from the full-resolution
+    image pixel the feature pixel covers) falls in the BEV cell the splat uses, and projects back
+    onto that image pixel."""
+    rig = load_rig(rig_path)
+    stride, size = 8, (192, 120)
+    bins = depth_bins(1.0, 37.0, 36)
+    checked = 0
+    for rc in rig:
+        rc_in = transform_camera(rc, base_transform(rc.camera, size))
+        pc = camera_point_cells(rc_in, stride, size, bins, GRID, (-10, 10))
+        fcam = feature_camera(rc_in.camera, stride, size)
+        assert pc.shape == (len(bins), fcam.height, fcam.width)
+        rng = np.random.default_rng(0)
+        for _ in range(60):
+            k, i, j = rng.integers(len(bins)), rng.integers(fcam.height), rng.integers(fcam.width)
+            uv = np.array([stride * j + (stride - 1) / 2, stride * i + (stride - 1) / 2])
+            origin, ray, valid = rc_in.rays_ego(uv)
+            p = origin + bins[k] * ray
+            row, col, inside = GRID.cell_of(p)
+            on_image = uv[0] <= size[0] - 0.5 and uv[1] <= size[1] - 0.5
+            expect = int(row * GRID.cols + col) if (inside and valid and on_image and -10 <= p[2] <= 10) else -1
+            assert pc[k, i, j] == expect
+            if expect >= 0:
+                checked += 1
+                uv_back, ok = rc_in.project_ego(p)
+                assert ok and np.abs(uv_back - uv).max() < 1e-6
+                # and the same point seen from the native camera lands on the native pixel
+                uv_native, _ = rc.project_ego(p)
+                s = base_transform(rc.camera, size).scale
+                assert np.abs(s * (uv_native + 0.5) - 0.5 - base_offset(rc.camera, size) - uv).max() < 1e-6
+    assert checked > 50
+
+
+def base_offset(camera, size):
+    t = base_transform(camera, size)
+    return np.array([t.x0, t.y0])
+
+
+def blob_image(cam, uv, sigma=2.5):
+    v, u = np.mgrid[0 : cam.height, 0 : cam.width]
+    g = np.exp(-((u - uv[0]) ** 2 + (v - uv[1]) ** 2) / (2 * sigma**2))
+    return np.repeat((g * 255).astype(np.uint8)[..., None], 3, -1)
+
+
+def centroid(img):
+    w = img[..., 0].astype(np.float64)
+    w = np.where(w > 20, w, 0)
+    v, u = np.mgrid[0 : img.shape[0], 0 : img.shape[1]]
+    return np.array([(u * w).sum() / w.sum(), (v * w).sum() / w.sum()])
+
+
+@pytest.mark.parametrize("t", [
+    ViewTransform(0.4, 0.0, 0, 0, (192, 120)),
+    ViewTransform(0.45, 0.0, 13, 9, (192, 120)),
+    ViewTransform(0.42, 8.0, 5, 3, (192, 120)),
+    ViewTransform(1.1, -6.0, 40, 20, (400, 260)),
+])
+def test_augmentation_moves_camera_with_image(t):
+    """Warp an image of a bright spot where a 3D point projects; the spot lands where the
+    transformed camera projects the point."""
+    rc = load_rig("configs/rigs/default.yaml")["left"]
+    rc2 = transform_camera(rc, t)
+    checked = 0
+    for p in ([4.0, 5.0, 0.0], [0.0, 3.0, 0.5], [6.0, 2.5, 1.0], [2.0, 4.0, 0.0]):
+        uv, ok = rc.project_ego(np.array(p))
+        uv2, ok2 = rc2.project_ego(np.array(p))
+        assert ok and ok2
+        if not (12 < uv2[0] < t.size[0] - 12 and 12 < uv2[1] < t.size[1] - 12):
+            continue
+        out = warp_image(blob_image(rc.camera, uv, sigma=4.0), rc.camera, t)
+        assert out.shape == (t.size[1], t.size[0], 3)
+        assert np.abs(centroid(out) - uv2).max() < 0.25, (p, centroid(out), uv2)
+        checked += 1
+    assert checked >= 2
+
+
+def test_rotation_only_for_square_radial_models():
+    rig = load_rig("configs/rigs/mixed.yaml")
+    assert all(can_rotate(rc.camera) for rc in rig)
+    from geometry.cameras import camera_from_dict
+
+    cyl = camera_from_dict({"model": "cylindrical", "width": 100, "height": 80, "fx": 30, "fy": 30, "cx": 49.5, "cy": 39.5})
+    squashed = rig["front"].camera.replace(fy=rig["front"].camera.fy * 1.2)
+    assert not can_rotate(cyl) and not can_rotate(squashed)
+    with pytest.raises(ValueError, match="cannot be rotated"):
+        transform_camera(RigCamera("c", cyl, np.eye(4)), ViewTransform(1.0, 5.0, 0, 0, (100, 80)))
+
+
+def small_cfg(**model):
+    m = {"encoder": {"widths": [8, 16, 16], "blocks": [1, 1]}, "stride": 4, "context_channels": 8,
+         "depth": {"min": 1.0, "max": 30.0, "bins": 8}, "bev_encoder": {"widths": [8, 16, 16], "blocks": [1, 1]}}
+    m.update(model)
+    return validate({"data": {"input_size": [64, 40], "grid": {"bound": 12.0, "res": 0.5}}, "model": m})
+
+
+@pytest.mark.parametrize("pooling", ["sum", "max", "weighted_sum", "sensors_per_cell", "intrinsics_embedding"])
+def test_model_forward_backward_every_pooling(pooling):
+    torch.manual_seed(0)
+    cfg = small_cfg(pooling=pooling)
+    model = build_model(cfg, load_rig("configs/rigs/mixed.yaml"))
+    x = torch.rand(2, 5, 3, 40, 64)
+    out = model(x)
+    assert out["semantic"].shape == (2, 4, 48, 48) and out["occlusion"].shape == (2, 48, 48)
+    (out["semantic"].sum() + out["occlusion"].sum()).backward()
+    grads = [p.grad for p in model.encoder.parameters()]
+    assert all(g is not None for g in grads) and sum(float(g.abs().sum()) for g in grads) > 0
+    # explicit nominal geometry gives the same output as the cached one
+    pc = model.nominal_point_cell[None].expand(2, -1, -1, -1, -1).contiguous()
+    assert torch.allclose(model(x, pc)["semantic"], out["semantic"], atol=1e-6)
+
+
+def test_pooling_definitions():
+    torch.manual_seed(0)
+    rig = load_rig("configs/rigs/default.yaml")
+    per_cam = {}
+    for pooling in ("sum", "max", "sensors_per_cell", "weighted_sum", "intrinsics_embedding"):
+        torch.manual_seed(0)
+        model = build_model(small_cfg(pooling=pooling), rig)
+        per_cam[pooling] = model
+    x = torch.rand(1, 4, 3, 40, 64)
+    m = per_cam["max"]
+    depth, ctx = m.lift(x)
+    feats = splat(depth, ctx, m._index(None, 1)).view(1, 4, 48, 48, -1)  # (B, N, X, Y, C)
+    assert torch.allclose(per_cam["sum"].pool(feats.sum(1)), feats.sum(1).permute(0, 3, 1, 2))
+    assert torch.allclose(m.pool(feats), feats.amax(1).permute(0, 3, 1, 2))
+    # weighted sum starts as the sum; sensors-per-cell starts as the mean over the cameras seeing a cell
+    assert torch.allclose(per_cam["weighted_sum"].pool(feats), feats.sum(1).permute(0, 3, 1, 2), atol=1e-5)
+    w = per_cam["sensors_per_cell"].pool.weight.detach()
+    seen = (m.nominal_point_cell >= 0)
+    n_cams = torch.zeros(48 * 48)
+    for k in range(4):
+        n_cams += torch.bincount(m.nominal_point_cell[k][seen[k]], minlength=48 * 48).clamp(max=1).float()
+    n_cams = n_cams.view(48, 48)
+    assert (n_cams >= 2).any()
+    assert torch.allclose(w.sum(0)[n_cams > 0], torch.ones(int((n_cams > 0).sum())))
+    assert torch.allclose(w[0][n_cams > 0] * n_cams[n_cams > 0], (w[0][n_cams > 0] > 0).float())
+    # intrinsics embedding starts as the sum of the mean-removed features over covered cells
+    cover = (torch.stack([torch.bincount(m.nominal_point_cell[k][seen[k]], minlength=48 * 48) for k in range(4)]) > 0).view(1, 4, 48, 48)
+    mask = cover[..., None].float()
+    mu = (feats * mask).sum((2, 3), keepdim=True) / mask.sum((2, 3), keepdim=True)
+    expect = ((feats - mu) * mask).sum(1).permute(0, 3, 1, 2)
+    got = per_cam["intrinsics_embedding"].pool(feats, cover.float(), m.nominal_intrinsics[None])
+    assert torch.allclose(got, expect, atol=1e-5)
+
+
+def test_semantic_loss_eq5():
+    logits = torch.randn(1, 4, 3, 3)
+    target = torch.tensor([[[1, 2, 3], [4, 0, 1], [3, 3, 2]]])
+    vis = torch.rand(1, 3, 3)
+    alpha = class_weights("paper")
+    logp = logits.log_softmax(1)
+    num = den = 0.0
+    for i in range(3):
+        for j in range(3):
+            y = int(target[0, i, j])
+            if y == 0:
+                continue
+            w = float(vis[0, i, j]) * float(alpha[y - 1])
+            num += -w * float(logp[0, y - 1, i, j])
+            den += w
+    assert math.isclose(float(semantic_loss(logits, target, vis, alpha)), num / den, rel_tol=1e-5)
+    # invisible cells carry no loss; with weighting off they do
+    vis0 = vis.clone()
+    vis0[0, 0, 0] = 0
+    l1 = semantic_loss(logits, target, vis0, alpha)
+    logits2 = logits.clone()
+    logits2[0, :, 0, 0] = torch.tensor([-9.0, 5.0, 0.0, 1.0])
+    assert torch.isclose(semantic_loss(logits2, target, vis0, alpha), l1)
+    assert not torch.isclose(semantic_loss(logits2, target, vis0, alpha, use_visibility=False),
+                             semantic_loss(logits, target, vis0, alpha, use_visibility=False))
+    t = torch.tensor([[[0.0, 1.0], [0.3, 0.9]]])
+    lo = torch.tensor([[[0.5, -1.0], [2.0, 0.0]]])
+    ref = -(t * torch.log(torch.sigmoid(lo)) + (1 - t) * torch.log(1 - torch.sigmoid(lo))).mean()
+    assert torch.isclose(occlusion_loss(lo, t), ref)
+    assert class_weights("uniform").tolist() == [1, 1, 1, 1]
+
+
+def test_metrics_confusion_and_iou():
+    g = torch.Generator().manual_seed(0)
+    pred = torch.randint(0, 5, (2, 20, 20), generator=g)
+    true = torch.randint(0, 5, (2, 20, 20), generator=g)
+    vis = torch.rand(2, 20, 20, generator=g)
+    cm = confusion(pred, true, vis)
+    ref = torch.zeros(5, 5, dtype=torch.int64)
+    for t, p, v in zip(true.flatten().tolist(), pred.flatten().tolist(), vis.flatten().tolist()):
+        if t > 0 and v >= 0.5:
+            ref[t, p] += 1
+    assert torch.equal(cm, ref)
+    m = BevMetrics(["invalid", "vehicle", "lane_marking", "street", "background"])
+    logits = torch.nn.functional.one_hot(true.clamp(min=1) - 1, 4).permute(0, 3, 1, 2).float()
+    occ = torch.where(vis >= 0.5, 3.0, -3.0)
+    m.update({"semantic": logits, "occlusion": occ}, {"semantic": true, "visibility": vis})
+    res = m.compute()
+    assert res["miou"] == 1.0 and res["iou/vehicle"] == 1.0 and res["iou/occlusion"] == 1.0
+    m.reset()
+    m.update({"semantic": logits.roll(1, 1), "occlusion": -occ}, {"semantic": true, "visibility": vis})
+    assert m.compute()["miou"] == 0.0
+
+
+def test_config_validation_and_train_cli_exit_code(tmp_path):
+    with pytest.raises(ConfigError, match=r"model\.pooling: must be one of"):
+        validate({"model": {"pooling": "mean"}}, "x.yaml")
+    with pytest.raises(ConfigError, match=r"train\.lrate: unknown field"):
+        validate({"train": {"lrate": 1}}, "x.yaml")
+    with pytest.raises(ConfigError, match=r"data\.input_size"):
+        validate({"data": {"input_size": [192]}}, "x.yaml")
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("_base: " + str((__import__("pathlib").Path("configs/train/cpu_default.yaml")).resolve()) + "\ntrain:\n  batch_size: many\n")
+    r = subprocess.run([sys.executable, "train.py", "--config", str(bad), "--out", str(tmp_path / "run")], capture_output=True, text=True)
+    assert r.returncode == 2
+    assert r.stderr.strip().count("\n") == 0 and "train.batch_size" in r.stderr and str(bad) in r.stderr
+    assert "Traceback" not in r.stderr
+
+
+def test_every_shipped_config_validates():
+    from model.config import load_config
+
+    names = ["cpu_default", "paper", "mixed_rig"] + [f"pool_{p}" for p in ("sum", "max", "weighted_sum", "sensors_per_cell", "intrinsics_embedding")]
+    for n in names:
+        cfg = load_config(f"configs/train/{n}.yaml")
+        if n.startswith("pool_"):
+            assert cfg["model"]["pooling"] == n[5:]
+    assert load_config("configs/train/paper.yaml")["data"]["input_size"] == [480, 302]
+    assert load_config("configs/train/paper.yaml")["train"]["batch_size"] == 64
+
+
+def test_checkpoint_roundtrip_and_refuses_other_config(tmp_path):
+    torch.manual_seed(0)
+    rig = load_rig("configs/rigs/default.yaml")
+    cfg = small_cfg(pooling="weighted_sum")
+    model = build_model(cfg, rig)
+    with torch.no_grad():
+        model.pool.weight.mul_(1.5)
+    path = tmp_path / "c.pt"
+    save_checkpoint(path, {"config": cfg, "rig": rig.to_dict(), "model": model.state_dict()})
+    loaded, cfg2, _ = load_checkpoint(path, expect_config=cfg)
+    x = torch.rand(1, 4, 3, 40, 64)
+    model.eval(), loaded.eval()
+    assert torch.equal(model(x)["semantic"], loaded(x)["semantic"])
+    with pytest.raises(CheckpointError, match="another config"):
+        load_checkpoint(path, expect_config=small_cfg(pooling="sum"))
+    (tmp_path / "junk.pt").write_bytes(b"not a checkpoint")
+    with pytest.raises(CheckpointError, match="junk.pt"):
+        load_checkpoint(tmp_path / "junk.pt")
+
+
+@pytest.mark.parametrize("stride", [4, 8])
+def test_encoder_feature_pixels_are_centred_where_the_lift_assumes(stride):
+    """With symmetric (constant) kernels the encoder is a linear, mirror-symmetric filter, so the
+    centroid of a feature pixel's input gradient is the image point it is centred on: it must be
+    (s j + (s - 1) / 2, s i + (s - 1) / 2), the pixel grid of camera.resized(W/s, H/s)."""
+    from model.encoder import ImageEncoder
+
+    enc = ImageEncoder((4, 4, 4, 4), (1, 1, 1), stride=stride, depth_bins=2, context_channels=2, norm="batch").eval()
+    with torch.no_grad():
+        for m in enc.modules():
+            if isinstance(m, torch.nn.Conv2d):
+                m.weight.fill_(1.0 / m.weight[0].numel())
+                if m.bias is not None:
+                    m.bias.zero_()
+    n = 256
+    x = torch.ones(1, 3, n, n, requires_grad=True)
+    depth, _ = enc(x)
+    assert depth.shape[-2:] == (n // stride, n // stride)
+    c = n // stride // 2
+    for i, j in [(c, c), (c - 1, c + 2), (c + 2, c - 1)]:
+        (g,) = torch.autograd.grad(depth[0, 0, i, j], x, retain_graph=True)
+        w = g[0].abs().sum(0)
+        v, u = torch.meshgrid(torch.arange(float(n)), torch.arange(float(n)), indexing="ij")
+        cu, cv = float((u * w).sum() / w.sum()), float((v * w).sum() / w.sum())
+        # (zero padding at the far image borders still pulls the deepest level by a hair)
+        assert abs(cu - (stride * j + (stride - 1) / 2)) < 0.02 and abs(cv - (stride * i + (stride - 1) / 2)) < 0.02, (cu, cv)

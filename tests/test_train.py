@@ -1,0 +1,228 @@
+"""train.py end to end: tiny overfit, DDP == single process, exact resume after a kill, mixed rig."""
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+import torch
+import yaml
+
+
+ROOT = Path(__file__).resolve().parents[1]
+
+TINY_MODEL = {
+    "encoder": {"widths": [16, 32, 32], "blocks": [1, 1]},
+    "stride": 4,
+    "context_channels": 16,
+    "depth": {"min": 1.0, "max": 37.0, "bins": 24},
+    "bev_encoder": {"widths": [16, 32, 32], "blocks": [1, 1]},
+}
+
+
+def write_config(path: Path, root, **sections) -> Path:
+    cfg = {
+        "_base": str(ROOT / "configs/train/cpu_default.yaml"),
+        "data": {"root": str(root), "val_split": "", "input_size": [64, 40], "grid": {"bound": 25.0, "res": 0.5}, "num_workers": 0},
+        "model": dict(TINY_MODEL),
+        "train": {"epochs": 50, "batch_size": 2, "lr": 3e-3, "threads": 1, "checkpoint_every": 1000, "image_every": 0, "log_every": 5},
+    }
+    for k, v in sections.items():
+        cfg.setdefault(k, {}).update(v)
+    path.write_text(yaml.safe_dump(cfg))
+    return path
+
+
+def free_port() -> int:
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def run_train(config, out, *extra, nproc=1, check=True, popen=False):
+    env = dict(os.environ, PYTHONPATH=str(ROOT), OMP_NUM_THREADS="1")
+    if nproc > 1:
+        cmd = [sys.executable, "-m", "torch.distributed.run", "--nproc_per_node", str(nproc), "--master_port", str(free_port()),
+               "train.py", "--config", str(config), "--out", str(out), "--quiet", *extra]
+    else:
+        cmd = [sys.executable, "train.py", "--config", str(config), "--out", str(out), "--quiet", *extra]
+    if popen:
+        return subprocess.Popen(cmd, cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    r = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=300)
+    if check:
+        assert r.returncode == 0, r.stderr[-3000:]
+    return r
+
+
+def params(path):
+    ck = torch.load(path, map_location="cpu", weights_only=False)
+    return ck, ck["model"]
+
+
+def test_two_ddp_processes_give_the_same_update_as_one(real_tiny, tmp_path):
+    from geometry.rig import rig_from_dict
+    from model import build_model
+
+    cfg = write_config(tmp_path / "c.yaml", real_tiny, train={"max_steps": 1, "batch_size": 4, "lr": 1e-3},
+                       data={"grid": label_grid(real_tiny)})
+    run_train(cfg, tmp_path / "one")
+    run_train(cfg, tmp_path / "two", nproc=2)
+    ck1, p1 = params(tmp_path / "one" / "latest.pt")
+    ck2, p2 = params(tmp_path / "two" / "latest.pt")
+    assert ck1["step"] == ck2["step"] == 1
+    torch.manual_seed(ck1["config"]["train"]["seed"])
+    model = build_model(ck1["config"], rig_from_dict(ck1["rig"]))
+    names = [n for n, _ in model.named_parameters()]
+    init = model.state_dict()
+    s1, s2 = ck1["optimizer"]["state"], ck2["optimizer"]["state"]
+    assert len(s1) == len(s2) == len(names)
+    lr = ck1["config"]["train"]["lr"]
+    checked = total = 0
+    for i, name in enumerate(names):
+        # the averaged gradient (Adam's first moment after one step is 0.1 g) agrees to rounding
+        g1, g2 = s1[i]["exp_avg"] / 0.1, s2[i]["exp_avg"] / 0.1
+        assert torch.allclose(g1, g2, atol=1e-5 * float(g1.abs().max()) + 1e-12, rtol=0), name
+        # so does the update, wherever the gradient is well above Adam's eps (1e-8): the first Adam
+        # step is lr * g / (|g| + eps), which rounding can move for gradients near eps
+        d1, d2 = p1[name] - init[name], p2[name] - init[name]
+        big = g1.abs() > 1e-6
+        assert torch.allclose(d1[big], d2[big], atol=0.01 * lr, rtol=0), name
+        assert (d1[big].abs() > 0.5 * lr).all()  # the step did move these weights
+        checked += int(big.sum())
+        total += big.numel()
+    assert checked > 0.9 * total
+
+
+def test_resumed_run_continues_exactly_after_a_kill(real_tiny, tmp_path):
+    # 14 frames, batch 4: 3 steps per epoch, so 7 steps cross two epoch boundaries
+    cfg = write_config(tmp_path / "c.yaml", real_tiny, train={"max_steps": 7, "checkpoint_every": 2, "batch_size": 4},
+                       augment={"enabled": True}, model={**TINY_MODEL, "dropout": 0.2}, data={"grid": label_grid(real_tiny)})
+    run_train(cfg, tmp_path / "straight")
+    proc = run_train(cfg, tmp_path / "killed", popen=True)
+    latest = tmp_path / "killed" / "latest.pt"
+    t0 = time.time()
+    while not latest.exists() and proc.poll() is None and time.time() - t0 < 240:
+        time.sleep(0.02)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    killed_step = torch.load(latest, weights_only=False)["step"]
+    assert 0 < killed_step < 7, "the kill came too late to test a resume"
+    run_train(cfg, tmp_path / "killed")
+    a, pa = params(tmp_path / "straight" / "latest.pt")
+    b, pb = params(tmp_path / "killed" / "latest.pt")
+    assert a["step"] == b["step"] == 7
+    for k in pa:
+        assert torch.equal(pa[k], pb[k]), k
+    for sa, sb in zip(a["optimizer"]["state"].values(), b["optimizer"]["state"].values()):
+        assert torch.equal(sa["exp_avg"], sb["exp_avg"])
+
+    # Ctrl-C: the run finishes its step, saves latest.pt and exits 130; the resume is exact too
+    proc = run_train(cfg, tmp_path / "ctrl_c", popen=True)
+    latest = tmp_path / "ctrl_c" / "latest.pt"
+    while not latest.exists() and proc.poll() is None:
+        time.sleep(0.02)
+    proc.send_signal(signal.SIGINT)
+    assert proc.wait(timeout=120) == 130
+    stopped = torch.load(latest, weights_only=False)["step"]
+    assert 0 < stopped < 7
+    run_train(cfg, tmp_path / "ctrl_c")
+    c, pc = params(latest)
+    assert c["step"] == 7 and all(torch.equal(pa[k], pc[k]) for k in pa)
+
+
+def render_dataset(out: Path, dataset_config: Path) -> Path:
+    """Real renders: issue 3's generator (Blender) then issue 4's label fusion."""
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    for cmd in (["-m", "dataset_tools.generate", "--config", str(dataset_config), "--out", str(out)],
+                ["-m", "dataset_tools.fuse", str(out)]):
+        r = subprocess.run([sys.executable, *cmd], cwd=ROOT, env=env, capture_output=True, text=True, timeout=600)
+        assert r.returncode == 0, r.stderr[-3000:]
+    assert (out / "index.json").is_file()
+    return out
+
+
+@pytest.fixture(scope="session")
+def real_tiny(tiny_dataset):
+    """configs/dataset/tiny.yaml rendered by Blender and fused (conftest's shared session fixture:
+    14 frames of 64x40, labels 64x64); read only here, runs write to their own folders."""
+    return tiny_dataset
+
+
+@pytest.fixture(scope="session")
+def real_mixed(tmp_path_factory):
+    """The tiny preset rendered with the mixed rig (four fisheye models + a pinhole), two scenes."""
+    d = tmp_path_factory.mktemp("real_mixed")
+    cfg = yaml.safe_load((ROOT / "configs/dataset/tiny.yaml").read_text())
+    cfg["rig"] = str(ROOT / "configs/rigs/mixed.yaml")
+    cfg["scenes"] = cfg["scenes"][:2]
+    (d / "mixed.yaml").write_text(yaml.safe_dump(cfg))
+    return render_dataset(d / "ds", d / "mixed.yaml")
+
+
+def label_grid(root):
+    from dataset_tools.reader import DatasetIndex
+
+    g = DatasetIndex(root).grid
+    return {"x_min": g.x_min, "x_max": g.x_max, "y_min": g.y_min, "y_max": g.y_max, "res": g.res}
+
+
+def evaluate_checkpoint(model, cfg, root):
+    from dataset_tools.reader import DatasetIndex
+    from model.data import BevDataset
+    from train import evaluate
+
+    ds = BevDataset(DatasetIndex(root), "train", cfg, train=False)
+    return evaluate(model, ds, cfg, torch.device("cpu"), 0, 1)
+
+
+def overfit(root, tmp_path, steps=60):
+    from geometry.rig import rig_from_dict
+    from model import build_model, load_checkpoint
+
+    cfg_path = write_config(tmp_path / "c.yaml", root, train={"max_steps": steps}, augment={"enabled": False},
+                            data={"grid": label_grid(root)})
+    run_train(cfg_path, tmp_path / "run")
+    model, cfg, ck = load_checkpoint(tmp_path / "run" / "latest.pt")
+    torch.manual_seed(cfg["train"]["seed"])
+    init = build_model(cfg, rig_from_dict(ck["rig"]))
+    before, after = evaluate_checkpoint(init, cfg, root), evaluate_checkpoint(model, cfg, root)
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    ev = EventAccumulator(str(tmp_path / "run" / "tb"))
+    ev.Reload()
+    losses = [s.value for s in ev.Scalars("train/loss")]
+    return losses, before, after
+
+
+def test_tiny_overfit_on_real_renders_loss_falls_and_iou_rises(real_tiny, tmp_path):
+    losses, before, after = overfit(real_tiny, tmp_path)
+    print(f"\noverfit: loss {losses[0]:.3f} -> {losses[-1]:.3f}; mIoU {before['miou']:.3f} -> {after['miou']:.3f};",
+          {k: round(v, 3) for k, v in after.items()})
+    assert losses[-1] < 0.6 * losses[0], losses
+    assert after["miou"] > before["miou"] + 0.1, (before, after)
+    assert after["iou/background"] > 0.5
+
+
+def test_mixed_rig_trains_on_real_renders(real_mixed, tmp_path):
+    from model import load_checkpoint
+
+    cfg_path = write_config(tmp_path / "c.yaml", real_mixed, train={"max_steps": 12, "log_every": 1},
+                            data={"grid": label_grid(real_mixed)}, model={**TINY_MODEL, "pooling": "intrinsics_embedding"})
+    run_train(cfg_path, tmp_path / "run")
+    model, cfg, ck = load_checkpoint(tmp_path / "run" / "latest.pt")
+    assert ck["step"] == 12 and model.camera_names == ["front", "left", "rear", "right", "front_pinhole"]
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    ev = EventAccumulator(str(tmp_path / "run" / "tb"))
+    ev.Reload()
+    losses = [s.value for s in ev.Scalars("train/loss")]
+    assert len(losses) == 12 and all(map(lambda v: v == v, losses))
+    assert sum(losses[-3:]) / 3 < 0.85 * losses[0], losses
+    # the five cameras' intrinsics descriptors differ (the pooling can tell the models apart)
+    d = model.nominal_intrinsics
+    assert torch.cdist(d, d).add(torch.eye(5) * 1e3).min() > 1e-3
