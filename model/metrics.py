@@ -3,7 +3,9 @@
 Semantic cells count where the true class is valid (> 0) and the true visibility p(o) >= 0.5 (the
 paper scores perceived cells only). Occlusion IoU is the IoU of the occluded mask (p(o) < 0.5)
 between prediction (sigmoid of the occlusion logit < 0.5) and truth, over all cells. mIoU is the
-mean of the five IoUs occlusion, vehicle, lane_marking, street, background (the paper's).
+mean of the five IoUs occlusion, vehicle, lane_marking, street, background (the paper's), over
+those that are defined: a class absent from both truth and prediction has no IoU (NaN) and is left
+out rather than counted as 0.
 """
 
 from __future__ import annotations
@@ -61,5 +63,5 @@ class BevMetrics:
         res = {f"iou/{n}": float(iou[i]) for i, n in enumerate(self.class_names) if i > 0}
         res["iou/occlusion"] = float(iou_from_confusion(self.occ)[1])
         vals = torch.tensor([res["iou/occlusion"]] + [res[f"iou/{n}"] for n in self.class_names[1:]])
-        res["miou"] = float(torch.nan_to_num(vals, nan=0.0).mean())
+        res["miou"] = float(vals.nanmean())  # a class absent from truth and prediction is left out
         return res

@@ -36,20 +36,28 @@ def test_perfect_prediction_scores_one():
     for n in NAMES[1:]:
         assert r[f"iou/{n}"] == 1.0
     assert math.isnan(r["iou/occlusion"])  # nothing occluded in truth or prediction
+    assert r["miou"] == 1.0  # an undefined IoU is left out of the mean, not counted as 0
     vis = np.ones((8, 8), np.float32)
     vis[0] = 0.2
     r = scores_of(truth, truth, vis)["overall"]
     assert r["iou/occlusion"] == 1.0 and r["miou"] == 1.0
 
 
-def test_absent_class_is_nan_and_counts_zero_in_miou():
+def test_absent_class_is_nan_and_left_out_of_miou():
     truth = layout()
     truth[truth == 1] = 3  # no vehicle anywhere
     vis = np.ones((8, 8), np.float32)
     vis[0] = 0.0
-    r = scores_of(truth, truth, vis)["overall"]
+    pred = truth.copy()
+    pred[5, 2:6] = 4  # 4 street cells predicted background
+    r = scores_of(pred, truth, vis)["overall"]
     assert math.isnan(r["iou/vehicle"])
-    assert r["miou"] == pytest.approx(4 / 5)  # the paper's mean over five: an absent class adds 0
+    street, background = 31 / 35, 14 / 18  # 35 visible street cells, 14 visible background
+    assert r["iou/street"] == pytest.approx(street) and r["iou/background"] == pytest.approx(background)
+    assert r["miou"] == pytest.approx((1 + 1 + street + background) / 4)  # occlusion, markings, street, background
+    pred[1, 3] = 1  # a vehicle predicted (on a visible cell) where there is none: now vehicle IoU is 0 and counts
+    r = scores_of(pred, truth, vis)["overall"]
+    assert r["iou/vehicle"] == 0.0 and r["miou"] < (1 + 1 + street + background) / 4 * 0.85
 
 
 def test_invalid_and_invisible_cells_are_ignored():
@@ -90,3 +98,51 @@ def test_table_has_the_papers_columns():
     table = evaluation.markdown_table(res, "ours")
     assert table.splitlines()[0] == "| Method | Image type | Dataset | mIoU | Occlusions | Vehicles | Markings | Street | Background |"
     assert "| ours | Raw distorted | easy | " in table
+
+
+def test_eval_of_a_trained_checkpoint_equals_a_recomputation_from_its_predictions(tiny_dataset, tmp_path):
+    """eval.py on a checkpoint trained on real tiny renders; its JSON against an independent
+    recomputation (numpy bincount) from the predictions it saved and the label files."""
+    import subprocess
+    import sys
+
+    from dataset_tools.reader import DatasetIndex, downsample_labels, read_frame
+    from test_train import label_grid, run_train, write_config
+
+    cfg = write_config(tmp_path / "c.yaml", tiny_dataset, train={"max_steps": 6}, augment={"enabled": False},
+                       data={"grid": label_grid(tiny_dataset)})
+    run_train(cfg, tmp_path / "run")
+    out = tmp_path / "eval"
+    r = subprocess.run([sys.executable, "eval.py", "--checkpoint", str(tmp_path / "run" / "latest.pt"), "--split", "all",
+                        "--out", str(out), "--save-predictions", "--pictures", "2", "--threads", "1"],
+                       capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert "| Method | Image type | Dataset |" in r.stdout
+    report = json.loads((out / "metrics.json").read_text())
+    assert list(report["splits"]) == ["train"]  # the tiny preset has only training scenes
+    res = report["splits"]["train"]
+    assert len(list(out.glob("frame_train_*.png"))) == 2 and (out / "confusion_train.png").is_file()
+    assert res["inference_ms_per_frame"] > 0
+
+    idx = DatasetIndex(tiny_dataset)
+    cm, occ = np.zeros((5, 5), np.int64), np.zeros((2, 2), np.int64)
+    refs = idx.frames("train")
+    assert res["frames"] == len(refs)
+    for ref in refs:
+        p = np.load(out / "predictions" / f"{ref.scene}_{ref.frame:06d}.npz")
+        f = read_frame(ref)
+        sem, vis = f["semantic"].astype(np.int64), f["visibility"]
+        if p["semantic"].shape != sem.shape:
+            sem, vis = downsample_labels(f["semantic"], vis, sem.shape[0] // p["semantic"].shape[0])
+        keep = (sem > 0) & (vis >= 0.5)
+        cm += np.bincount(sem[keep] * 5 + p["semantic"][keep], minlength=25).reshape(5, 5)
+        occ += np.bincount((vis < 0.5).ravel() * 2 + (p["occlusion_logit"] < 0).ravel(), minlength=4).reshape(2, 2)
+    assert res["confusion"] == cm.tolist() and res["occlusion_confusion"] == occ.tolist()
+    ious = {}
+    for i, n in enumerate(NAMES[1:], 1):
+        union = cm[i].sum() + cm[:, i].sum() - cm[i, i]
+        ious[n] = cm[i, i] / union if union else float("nan")
+    ious["occlusion"] = occ[1, 1] / (occ[1].sum() + occ[:, 1].sum() - occ[1, 1])
+    for n, v in ious.items():
+        assert res["overall"][f"iou/{n}"] == pytest.approx(v, nan_ok=True), n
+    assert res["overall"]["miou"] == pytest.approx(np.nanmean(list(ious.values())))
