@@ -7,19 +7,11 @@ from __future__ import annotations
 
 import os
 import tempfile
-import time
 from pathlib import Path
 
+from bench import best_of
+
 GOAL_FPS = 20.0
-
-
-def _best_of(fn, repeat=7):
-    best = float("inf")
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        fn()
-        best = min(best, time.perf_counter() - t0)
-    return best
 
 
 def scene_boxes():
@@ -52,9 +44,9 @@ def run() -> dict:
         frame = write_frame(Path(tmp) / "s/000000", rig, grid, scene_boxes())
         meta, frig, cams, td = load_frame_passes(frame)
         fuse_passes(frig, cams, td, grid, cfg)  # builds the ray tables
-        t_mem = _best_of(lambda: fuse_passes(frig, cams, td, grid, cfg))
-        t_disk = _best_of(lambda: write_labels(frame, fuse_frame(frame, cfg)))
-        t_read = _best_of(lambda: load_frame_passes(frame))
+        t_mem = best_of(lambda: fuse_passes(frig, cams, td, grid, cfg))
+        t_disk = best_of(lambda: write_labels(frame, fuse_frame(frame, cfg)))
+        t_read = best_of(lambda: load_frame_passes(frame))
     fps_mem, fps_disk = 1.0 / t_mem, 1.0 / t_disk
     return {
         "fusion frames/s, passes in memory (1 core)": {"value": round(fps_mem, 1), "unit": "frame/s",

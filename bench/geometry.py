@@ -1,21 +1,10 @@
 """Geometry throughput: unprojecting every pixel of a 480x302 image, per model, and projecting
-as many points; on one core, float64 numpy and float32 torch."""
+as many points; on one core, float64 numpy (the arithmetic is torch's either way)."""
 
-import time
-
-import numpy as np
 import torch
 
+from bench import best_of
 from geometry.cameras import camera_from_dict
-
-
-def _best_of(fn, repeat=5):
-    best = float("inf")
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        fn()
-        best = min(best, time.perf_counter() - t0)
-    return best
 
 
 def run() -> dict:
@@ -32,8 +21,8 @@ def run() -> dict:
         cam = camera_from_dict(dict(base, model=name, **extra))
         uv = cam.pixel_grid().numpy()
         rays, _ = cam.unproject(uv)
-        t_un = _best_of(lambda: cam.unproject(uv))
-        t_pr = _best_of(lambda: cam.project(rays))
+        t_un = best_of(lambda: cam.unproject(uv))
+        t_pr = best_of(lambda: cam.project(rays))
         figures[f"{name} unproject 480x302 (numpy f64)"] = {"value": t_un * 1e3, "unit": "ms", "goal": None, "met": None}
         figures[f"{name} project 145k points (numpy f64)"] = {"value": t_pr * 1e3, "unit": "ms", "goal": None, "met": None}
     return figures

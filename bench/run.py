@@ -1,8 +1,9 @@
 """`make bench`: run every bench module, write bench/out/results.json and results.md.
 
-A bench module exposes `run() -> dict` mapping a figure's name to
-{"value": number, "unit": str, "goal": str or None, "met": bool or None}. Modules that cannot run
-(a missing data set, say) raise `bench.Skip` with a reason, which is reported, not hidden.
+A bench module exposes `run() -> dict` mapping a figure's name either to
+{"value": number, "unit": str, "goal": str or None, "met": bool or None} or to a plain value, with
+goals for plain values under the key "goals" ({name: ">= 5"}). A module that fails is reported in
+the table (and `make bench` exits non-zero), not hidden.
 """
 
 from __future__ import annotations
@@ -38,7 +39,7 @@ def main(argv=None) -> int:
             raise
         print(f"bench: {short} ...", flush=True)
         try:
-            figures = mod.run()
+            figures = normalise(mod.run())
             results[short] = {"figures": figures, "seconds": round(time.perf_counter() - t0, 1)}
         except Exception as exc:  # noqa: BLE001 - a bench failure is reported in the table
             results[short] = {"error": f"{type(exc).__name__}: {exc}"}
@@ -50,6 +51,23 @@ def main(argv=None) -> int:
     print(to_markdown(meta, results))
     print(f"written {args.out / 'results.json'} and {args.out / 'results.md'}")
     return 1 if failed else 0
+
+
+def normalise(figures: dict) -> dict:
+    """Every figure as {"value", "unit", "goal", "met"}; "met" from a ">= x" / "<= x" goal."""
+    figures = dict(figures)
+    goals = figures.pop("goals", {})
+    out = {}
+    for name, v in figures.items():
+        if isinstance(v, dict) and "value" in v:
+            out[name] = v
+            continue
+        goal, met = goals.get(name), None
+        if goal and isinstance(v, (int, float)):
+            op, bound = goal.split()
+            met = v >= float(bound) if op == ">=" else v <= float(bound)
+        out[name] = {"value": v, "unit": "", "goal": goal, "met": met}
+    return out
 
 
 def _cpus() -> int:

@@ -40,7 +40,7 @@ DEFAULT_EGO_BOX = (-1.10, 3.85, -1.00, 1.00)
 class FusionConfig:
     """Label fusion settings; the `labels:` section of a dataset config overrides these."""
 
-    tau: float = 8.0  # points within the kernel for p(o) = 1, at the reference resolution (docs/labels.md)
+    tau: float = 8.0  # points within the kernel for p(o) = 1, at the reference resolution (README.md, "tau = 8")
     kernel_radius_m: float = 0.5
     # tau scales with the mean camera pixel count over this, so p(o) does not depend on the render
     # size (None: use tau as given)

@@ -500,6 +500,7 @@ class UCM(Camera):
     """u = fx x / (alpha d + (1 - alpha) z) + cx; alpha in [0, 1]."""
 
     model, keys = "ucm", ("fx", "fy", "cx", "cy", "alpha")
+    beta = 1.0  # UCM is EUCM with beta = 1
 
     def _validate(self):
         super()._validate()
@@ -507,7 +508,7 @@ class UCM(Camera):
             raise CameraError(f"{self.model}: 'alpha' must be in [0, 1]")
 
     def _d(self, x, y, z):
-        return torch.sqrt(x * x + y * y + z * z)
+        return torch.sqrt(self.beta * (x * x + y * y) + z * z)
 
     def _project(self, p):
         x, y, z = p.unbind(-1)
@@ -519,11 +520,11 @@ class UCM(Camera):
         return self._to_pixels(x / den, y / den), valid
 
     def _unproject(self, uv):
-        a = self.alpha
+        a, b = self.alpha, self.beta
         mx, my = self._normalised(uv)
         r2 = mx * mx + my * my
-        valid = torch.ones_like(r2, dtype=torch.bool) if a <= 0.5 else r2 <= 1 / (2 * a - 1)
-        mz = (1 - a * a * r2) / (a * torch.sqrt((1 - (2 * a - 1) * r2).clamp(min=0)) + (1 - a))
+        valid = torch.ones_like(r2, dtype=torch.bool) if a <= 0.5 else r2 <= 1 / (b * (2 * a - 1))
+        mz = (1 - b * a * a * r2) / (a * torch.sqrt((1 - (2 * a - 1) * b * r2).clamp(min=0)) + (1 - a))
         rays = torch.stack([mx, my, mz], -1)
         return rays / rays.norm(dim=-1, keepdim=True), valid
 
@@ -538,17 +539,9 @@ class EUCM(UCM):
         if self.params["beta"] <= 0:
             raise CameraError("eucm: 'beta' must be positive")
 
-    def _d(self, x, y, z):
-        return torch.sqrt(self.beta * (x * x + y * y) + z * z)
-
-    def _unproject(self, uv):
-        a, b = self.alpha, self.beta
-        mx, my = self._normalised(uv)
-        r2 = mx * mx + my * my
-        valid = torch.ones_like(r2, dtype=torch.bool) if a <= 0.5 else r2 <= 1 / (b * (2 * a - 1))
-        mz = (1 - b * a * a * r2) / (a * torch.sqrt((1 - (2 * a - 1) * b * r2).clamp(min=0)) + (1 - a))
-        rays = torch.stack([mx, my, mz], -1)
-        return rays / rays.norm(dim=-1, keepdim=True), valid
+    @property
+    def beta(self):
+        return self.params["beta"]
 
 
 class DoubleSphere(Camera):

@@ -1,4 +1,4 @@
-"""LSS-fisheye BEV segmentation model (see docs/model.md)."""
+"""LSS-fisheye BEV segmentation model (see README.md, "Model and training")."""
 
 from .checkpoint import CheckpointError, build_model, load_checkpoint, save_checkpoint
 

@@ -47,7 +47,8 @@ def load_checkpoint(path, expect_config: dict | None = None, map_location="cpu")
     try:
         ckpt = torch.load(path, map_location=map_location, weights_only=False)
     except Exception as exc:  # torch.load raises many kinds (pickle, zip, runtime) on a bad file
-        raise CheckpointError(f"{path}: cannot read checkpoint ({type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''})") from None
+        what = "no such file" if isinstance(exc, FileNotFoundError) else f"torch.load failed: {type(exc).__name__}"
+        raise CheckpointError(f"{path}: not a readable checkpoint ({what})") from None
     for k in ("config", "model", "rig"):
         if not isinstance(ckpt, dict) or k not in ckpt:
             raise CheckpointError(f"{path}: not a checkpoint of train.py (missing '{k}')")

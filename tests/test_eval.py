@@ -146,3 +146,17 @@ def test_eval_of_a_trained_checkpoint_equals_a_recomputation_from_its_prediction
     for n, v in ious.items():
         assert res["overall"][f"iou/{n}"] == pytest.approx(v, nan_ok=True), n
     assert res["overall"]["miou"] == pytest.approx(np.nanmean(list(ious.values())))
+
+    # bad input: one line naming the problem, exit 2, no traceback
+    ckpt = str(tmp_path / "run" / "latest.pt")
+    garbage = tmp_path / "garbage.pt"
+    garbage.write_text("not a checkpoint")
+    for args, message in [
+        (["--checkpoint", str(tmp_path / "missing.pt")], "missing.pt: no such checkpoint"),
+        (["--checkpoint", str(garbage)], "garbage.pt: not a readable checkpoint"),
+        (["--checkpoint", ckpt, "--split", "hard"], "split 'hard' has no frames"),
+        (["--checkpoint", ckpt, "--config", "configs/train/pool_max.yaml"], "checkpoint is from another config"),
+    ]:
+        r = subprocess.run([sys.executable, "eval.py", "--out", str(tmp_path / "bad"), *args], capture_output=True, text=True, timeout=300)
+        assert r.returncode == 2, (args, r.stderr)
+        assert message in r.stderr and len(r.stderr.strip().splitlines()) == 1 and "Traceback" not in r.stderr, r.stderr
