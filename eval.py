@@ -82,8 +82,8 @@ class SplitScores:
         }
 
 
-def _fmt(v: float) -> str:
-    return "-" if v != v else f"{v:.3f}"  # NaN (class absent from truth and prediction) -> "-"
+def _fmt(v) -> str:
+    return "-" if v is None or v != v else f"{v:.3f}"  # NaN (class absent from truth and prediction) -> "-"
 
 
 def markdown_table(results: dict, method: str) -> str:
@@ -91,7 +91,7 @@ def markdown_table(results: dict, method: str) -> str:
     lines = [head, "|" + "---|" * (3 + len(TABLE_COLUMNS))]
     for split, r in results.items():
         o = r["overall"]
-        lines.append(f"| {method} | Raw distorted | {split} | " + " | ".join(_fmt(o[k]) for k, _ in TABLE_COLUMNS) + " |")
+        lines.append(f"| {method} | Raw distorted | {split} | " + " | ".join(_fmt(o.get(k)) for k, _ in TABLE_COLUMNS) + " |")
     for split, r in results.items():
         for group in ("bands", "weather"):
             if len(r[group]) < 2:
@@ -100,7 +100,7 @@ def markdown_table(results: dict, method: str) -> str:
                       f"| {group[:-1] if group == 'bands' else 'weather'} | " + " | ".join(t for _, t in TABLE_COLUMNS) + " |",
                       "|" + "---|" * (1 + len(TABLE_COLUMNS))]
             for name, o in r[group].items():
-                lines.append(f"| {name} | " + " | ".join(_fmt(o[k]) for k, _ in TABLE_COLUMNS) + " |")
+                lines.append(f"| {name} | " + " | ".join(_fmt(o.get(k)) for k, _ in TABLE_COLUMNS) + " |")
     lines += ["", "Inference: " + ", ".join(f"{s} {r['inference_ms_per_frame']:.1f} ms/frame" for s, r in results.items())]
     return "\n".join(lines) + "\n"
 
@@ -133,7 +133,7 @@ def frame_picture(path: Path, images: dict, truth, vis, pred, pred_vis, class_na
     for i, (img, t) in enumerate(panels):
         ax = fig.add_subplot(gs[1, i])
         ax.imshow(img, cmap="magma", vmin=0, vmax=1) if img.ndim == 2 else ax.imshow(img)
-        ax.plot([img.shape[1] / 2], [img.shape[0] / 2], marker="^", color="cyan", ms=5)  # ego origin, facing up
+        ax.plot([img.shape[1] / 2 - 0.5], [img.shape[0] / 2 - 0.5], marker="^", color="cyan", ms=5)  # ego origin, facing up
         ax.set_title(t, fontsize=9)
         ax.axis("off")
     fig.legend(handles=[Patch(facecolor=TRAIN_PALETTE[i] / 255, edgecolor="black", label=n) for i, n in enumerate(class_names) if i > 0],
@@ -169,14 +169,14 @@ def confusion_picture(path: Path, cm: np.ndarray, class_names, title: str):
 def _save_fig(fig, path: Path):
     import matplotlib.pyplot as plt
 
-    tmp = path.with_name(f".{path.stem}.tmp.png")
+    tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp.png")
     fig.savefig(tmp, dpi=80)
     plt.close(fig)
     os.replace(tmp, path)
 
 
 def _write(path: Path, text: str):
-    tmp = path.with_name(f".{path.name}.tmp")
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
     tmp.write_text(text)
     os.replace(tmp, path)
 
@@ -203,7 +203,7 @@ def evaluate_split(model, cfg, index: DatasetIndex, split: str, out: Path, pictu
         scores.update(pred, occ, sample["semantic"], sample["visibility"], ref.weather)
         name = f"{ref.scene}_{ref.frame:06d}"
         if save_predictions:
-            tmp = out / "predictions" / f".{name}.tmp.npz"
+            tmp = out / "predictions" / f".{name}.{os.getpid()}.tmp.npz"
             np.savez_compressed(tmp, semantic=pred.numpy().astype(np.uint8), occlusion_logit=occ.numpy())
             os.replace(tmp, out / "predictions" / f"{name}.npz")
         if i in picture_at:
@@ -239,6 +239,8 @@ def main(argv=None) -> int:
         index = DatasetIndex(cfg["data"]["root"])
         if index.rig.names != list(ckpt["rig"]["cameras"]):
             raise EvalError(f"{index.root}: rig cameras {index.rig.names} differ from the checkpoint's {list(ckpt['rig']['cameras'])}")
+        if len(index.class_names) != ckpt.get("num_classes", 5):
+            raise EvalError(f"{index.root}: {len(index.class_names)} classes, the checkpoint predicts {ckpt.get('num_classes', 5)}")
         splits = [s for s in SPLITS if index.splits.get(s)] if a.split == "all" else [a.split]
         if not splits:
             raise EvalError(f"{index.root}: no split has frames")

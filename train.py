@@ -26,6 +26,7 @@ from dataset_tools.reader import DatasetError, DatasetIndex
 from geometry.cameras import CameraError
 from geometry.rig import RigError
 from model import CheckpointError, build_model, save_checkpoint
+from model.checkpoint import model_part
 from model.config import ConfigError, load_config, parse_override
 from model.data import BevDataset, DataError
 from model.losses import class_weights, total_loss
@@ -122,8 +123,8 @@ def train(cfg: dict, out_dir: Path, quiet: bool = False) -> dict:
             ckpt = torch.load(latest, map_location="cpu", weights_only=False)
         except Exception as exc:  # a truncated or foreign file; ours are written atomically
             raise CheckpointError(f"{latest}: cannot read checkpoint ({type(exc).__name__}); move it away to start afresh") from None
-        if ckpt["config"]["model"] != cfg["model"] or ckpt["config"]["data"]["input_size"] != cfg["data"]["input_size"]:
-            raise CheckpointError(f"{latest}: checkpoint is from another config; use another --out")
+        if model_part(ckpt["config"]) != model_part(cfg) or ckpt.get("rig") != index.rig.to_dict():
+            raise CheckpointError(f"{latest}: checkpoint is from another config or rig; use another --out")
         model.load_state_dict(ckpt["model"])
         opt.load_state_dict(ckpt["optimizer"])
         step, epoch, step_in_epoch, best = ckpt["step"], ckpt["epoch"], ckpt["step_in_epoch"], ckpt["best"]

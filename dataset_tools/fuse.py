@@ -67,6 +67,17 @@ class FusionConfig:
             v = getattr(cfg, k)
             if not isinstance(v, (int, float)) or v <= 0:
                 raise DatasetError(f"{source}: field '{k}' must be a positive number, got {v!r}")
+        if not isinstance(cfg.spread_step_m, (int, float)) or cfg.spread_step_m < 0:
+            raise DatasetError(f"{source}: field 'spread_step_m' must be a number >= 0, got {cfg.spread_step_m!r}")
+        if cfg.reference_pixels is not None and not (isinstance(cfg.reference_pixels, (int, float)) and cfg.reference_pixels > 0):
+            raise DatasetError(f"{source}: field 'reference_pixels' must be a positive number or null")
+        if cfg.ego_box is not None:
+            box = cfg.ego_box
+            if not (isinstance(box, (list, tuple)) and len(box) == 4 and all(isinstance(v, (int, float)) for v in box)
+                    and box[0] < box[1] and box[2] < box[3]):
+                raise DatasetError(f"{source}: field 'ego_box' must be [x_min, x_max, y_min, y_max] with min < max")
+        if not (isinstance(cfg.class_names, list) and cfg.class_names and all(isinstance(n, str) for n in cfg.class_names)):
+            raise DatasetError(f"{source}: field 'class_names' must be a non-empty list of names")
         if not isinstance(cfg.min_vehicle_pixels, int) or cfg.min_vehicle_pixels < 1:
             raise DatasetError(f"{source}: field 'min_vehicle_pixels' must be a positive integer")
         for k in ("ground_classes", "vehicle_classes"):

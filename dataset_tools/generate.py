@@ -34,10 +34,11 @@ class ConfigError(RecipeError):
 
 
 def _resolve(path, base: Path) -> Path:
+    """A path as given (absolute or from the working directory), else beside the config, else in the repo."""
     p = Path(path)
     if p.is_absolute() or p.exists():
         return p
-    return REPO / p
+    return base / p if (base / p).exists() else REPO / p
 
 
 def load_config(path) -> dict:
@@ -193,7 +194,11 @@ def run(cfg: dict, out: Path, shard=(0, 1), workers: int | None = None, progress
                 for line in proc.stdout:
                     if not line.startswith(MARK):
                         continue
-                    msg = json.loads(line[len(MARK):])
+                    try:
+                        msg = json.loads(line[len(MARK):])
+                    except json.JSONDecodeError:
+                        errors.append(f"{task['scene']}: garbled worker message {line.strip()[:80]!r}")
+                        break
                     if msg["event"] == "frame":
                         s = task
                         manifest.append({"scene": msg["scene"], "frame": msg["frame"], "split": s["split"],

@@ -80,7 +80,7 @@ class DatasetIndex:
 
     def frames(self, split: str) -> list[FrameRef]:
         if split not in self.splits:
-            raise KeyError(f"{self.root / INDEX_FILE}: no split '{split}' (have: {', '.join(self.splits)})")
+            raise DatasetError(f"{self.root / INDEX_FILE}: no split '{split}' (have: {', '.join(self.splits)})")
         return list(self.splits[split])
 
     def all_frames(self) -> list[FrameRef]:

@@ -81,10 +81,8 @@ def lift(table: RayTable, distance: np.ndarray, group: np.ndarray | None = None)
 
 def cell_index(grid, xy: np.ndarray):
     """Flat cell index (row * cols + col) of ego (x, y) points on the grid, and which those are."""
-    row = np.floor((grid.x_max - xy[:, 0]) / grid.res)
-    col = np.floor((grid.y_max - xy[:, 1]) / grid.res)
-    inside = (row >= 0) & (row < grid.rows) & (col >= 0) & (col < grid.cols)
-    return (row[inside] * grid.cols + col[inside]).astype(np.int64), inside
+    row, col, inside = grid.cell_of(xy)
+    return row[inside] * grid.cols + col[inside], inside
 
 
 def count_points(grid, xy: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray:

@@ -642,6 +642,10 @@ def camera_from_dict(d: dict) -> Camera:
     for k in ("width", "height"):
         if k not in d:
             raise CameraError(f"{name}: missing key '{k}'")
-        if not float(d[k]).is_integer():
+        try:
+            whole = float(d[k]).is_integer()
+        except (TypeError, ValueError):
+            whole = False
+        if not whole:
             raise CameraError(f"{name}: '{k}' must be a whole number of pixels")
     return MODELS[name](**d)

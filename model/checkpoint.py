@@ -35,7 +35,7 @@ def save_checkpoint(path, state: dict) -> None:
     os.replace(tmp, path)
 
 
-def _model_part(cfg: dict) -> dict:
+def model_part(cfg: dict) -> dict:
     # what decides the network and its inputs; training knobs may differ
     return {"model": cfg["model"], "input_size": list(cfg["data"]["input_size"]), "grid": cfg["data"]["grid"]}
 
@@ -53,8 +53,8 @@ def load_checkpoint(path, expect_config: dict | None = None, map_location="cpu")
         if not isinstance(ckpt, dict) or k not in ckpt:
             raise CheckpointError(f"{path}: not a checkpoint of train.py (missing '{k}')")
     cfg = ckpt["config"]
-    if expect_config is not None and _model_part(expect_config) != _model_part(cfg):
-        diff = [k for k in _model_part(cfg) if _model_part(cfg)[k] != _model_part(expect_config)[k]]
+    if expect_config is not None and model_part(expect_config) != model_part(cfg):
+        diff = [k for k in model_part(cfg) if model_part(cfg)[k] != model_part(expect_config)[k]]
         raise CheckpointError(f"{path}: checkpoint is from another config ({', '.join(diff)} differ)")
     rig = rig_from_dict(ckpt["rig"], f"{path}: rig")
     model = build_model(cfg, rig, ckpt.get("num_classes", 5))

@@ -156,6 +156,9 @@ def _semantic_checks(cfg: dict, source: str):
         raise ConfigError(f"{source}: model.z_range: must be [low, high] with low < high")
     if t["batch_size"] < 1 or t["epochs"] < 1:
         raise ConfigError(f"{source}: train: batch_size and epochs must be >= 1")
+    for k in ("checkpoint_every", "log_every"):
+        if t[k] < 1:
+            raise ConfigError(f"{source}: train.{k}: must be >= 1 (steps)")
     if not t["lr"] > 0:
         raise ConfigError(f"{source}: train.lr: must be positive")
     if any(v <= 0 for v in cfg["data"]["input_size"]):

@@ -39,6 +39,8 @@ class BevDataset(Dataset):
         self.rig = self.index.rig
         self.names = self.rig.names
         self.class_names = self.index.class_names
+        # thin classes win a block when labels are pooled to the model grid (by name: the class map is configurable)
+        self.priority = tuple(self.class_names.index(n) for n in ("lane_marking", "vehicle") if n in self.class_names)
         self.input_size = tuple(cfg["data"]["input_size"])
         self.grid = BevGrid.from_dict(cfg["data"]["grid"])
         self.factor = label_factor(self.index.grid, self.grid, str(self.index.root / "index.json"))
@@ -70,8 +72,8 @@ class BevDataset(Dataset):
     def __getitem__(self, i: int) -> dict:
         ref = self.refs[i]
         f = read_frame(ref, cameras=self.names)
-        seed = (self.seed * 1_000_003 + self.epoch * 10_007 + i) % (2**63)
-        rng = np.random.default_rng(seed)
+        rng = np.random.default_rng([self.seed, self.epoch, i])  # independent streams: no collisions
+        seed = int(rng.integers(2**63))  # the colour jitter's torch seed
         if self.augment:
             a = self.augment
             transforms = [random_transform(rc.camera, self.input_size, rng, a["scale"], a["rotation_deg"], a["crop"]) for rc in self.rig]
@@ -94,7 +96,7 @@ class BevDataset(Dataset):
                 images = self.jitter(images)
         sem, vis = f["semantic"], f["visibility"]
         if self.factor > 1:
-            sem, vis = downsample_labels(sem, vis, self.factor, num_classes=len(self.class_names))
+            sem, vis = downsample_labels(sem, vis, self.factor, priority=self.priority, num_classes=len(self.class_names))
         if sem.shape != self.grid.shape:
             raise DataError(f"{ref.dir}/labels/semantic.png: {sem.shape} after pooling, model grid is {self.grid.shape}")
         return {

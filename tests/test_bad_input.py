@@ -1,0 +1,35 @@
+"""Bad input anywhere gets one clear error naming the file or field (the CLIs print it as one line)."""
+
+import pytest
+
+from dataset_tools.fuse import FusionConfig
+from dataset_tools.reader import DatasetError, DatasetIndex
+from geometry.cameras import CameraError, camera_from_dict
+from model.config import ConfigError, validate
+
+
+def test_camera_size_that_is_not_a_number():
+    with pytest.raises(CameraError, match="pinhole: 'width' must be a whole number of pixels"):
+        camera_from_dict({"model": "pinhole", "width": "abc", "height": 4, "fx": 1, "fy": 1, "cx": 1, "cy": 1})
+
+
+@pytest.mark.parametrize("field", ["checkpoint_every", "log_every"])
+def test_zero_step_intervals_are_refused(field):
+    with pytest.raises(ConfigError, match=f"train.{field}: must be >= 1"):
+        validate({"train": {field: 0}}, "c.yaml")
+
+
+@pytest.mark.parametrize("labels, message", [
+    ({"spread_step_m": -1}, "'spread_step_m' must be a number >= 0"),
+    ({"ego_box": [1, 2, 3]}, "'ego_box' must be"),
+    ({"ego_box": [3, 2, -1, 1]}, "'ego_box' must be"),
+    ({"reference_pixels": 0}, "'reference_pixels' must be a positive number"),
+])
+def test_fusion_config_fields(labels, message):
+    with pytest.raises(DatasetError, match=message):
+        FusionConfig.from_dict(labels, "small.yaml: labels")
+
+
+def test_unknown_split(tiny_dataset):
+    with pytest.raises(DatasetError, match="no split 'val'"):
+        DatasetIndex(tiny_dataset).frames("val")
