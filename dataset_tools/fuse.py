@@ -92,15 +92,9 @@ class FusionConfig:
 
     @classmethod
     def load(cls, path) -> "FusionConfig":
-        import yaml
+        from .recipe import read_yaml
 
-        path = Path(path)
-        try:
-            d = yaml.safe_load(path.read_text()) or {}
-        except OSError as exc:
-            raise DatasetError(f"{path}: cannot read ({exc.strerror})") from None
-        except yaml.YAMLError as exc:
-            raise DatasetError(f"{path}: not valid YAML ({str(exc).splitlines()[0]})") from None
+        d = read_yaml(path, DatasetError) or {}
         return cls.from_dict(d.get("labels", {}) if isinstance(d, dict) else {}, f"{path}: labels")
 
     def lut(self) -> np.ndarray:

@@ -18,9 +18,7 @@ import sys
 import threading
 from pathlib import Path
 
-import yaml
-
-from .recipe import RecipeError, load_recipe
+from .recipe import RecipeError, load_recipe, read_yaml
 
 REPO = Path(__file__).resolve().parent.parent
 MARK = "@@bev "
@@ -44,12 +42,7 @@ def _resolve(path, base: Path) -> Path:
 def load_config(path) -> dict:
     """The dataset config with every scene's recipe loaded and checked."""
     path = Path(path)
-    try:
-        d = yaml.safe_load(path.read_text())
-    except OSError as exc:
-        raise ConfigError(f"{path}: cannot read ({exc.strerror})") from None
-    except yaml.YAMLError as exc:
-        raise ConfigError(f"{path}: not valid YAML ({str(exc).splitlines()[0]})") from None
+    d = read_yaml(path, ConfigError)
     if not isinstance(d, dict):
         raise ConfigError(f"{path}: must be a mapping")
     for k in d:

@@ -174,14 +174,18 @@ def validate_recipe(d, source: str = "recipe", overrides: dict | None = None) ->
     return out
 
 
-def load_recipe(path, overrides: dict | None = None) -> dict:
+def read_yaml(path, error=ValueError):
+    """A YAML file's content; an unreadable or malformed file raises `error` with one line naming it."""
     path = Path(path)
     try:
         text = path.read_text()
     except OSError as exc:
-        raise RecipeError(f"{path}: cannot read ({exc.strerror})") from None
+        raise error(f"{path}: cannot read ({exc.strerror})") from None
     try:
-        d = yaml.safe_load(text)
+        return yaml.safe_load(text)
     except yaml.YAMLError as exc:
-        raise RecipeError(f"{path}: not valid YAML ({str(exc).splitlines()[0]})") from None
-    return validate_recipe(d, str(path), overrides)
+        raise error(f"{path}: not valid YAML ({str(exc).splitlines()[0]})") from None
+
+
+def load_recipe(path, overrides: dict | None = None) -> dict:
+    return validate_recipe(read_yaml(path, RecipeError), str(path), overrides)

@@ -11,6 +11,8 @@ from pathlib import Path
 
 import yaml
 
+from dataset_tools.recipe import read_yaml
+
 from .pooling import POOLINGS
 
 DEFAULTS = {
@@ -183,13 +185,7 @@ def _deep_merge(base: dict, over: dict) -> dict:
 
 def read_config_file(path, _seen=()) -> dict:
     path = Path(path)
-    try:
-        data = yaml.safe_load(path.read_text())
-    except OSError as exc:
-        raise ConfigError(f"{path}: cannot read ({exc.strerror})") from None
-    except yaml.YAMLError as exc:
-        raise ConfigError(f"{path}: not valid YAML ({str(exc).splitlines()[0]})") from None
-    data = data or {}
+    data = read_yaml(path, ConfigError) or {}
     if not isinstance(data, dict):
         raise ConfigError(f"{path}: must be a mapping of sections")
     base = data.pop("_base", None)
