@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import os
 import time
+from contextlib import contextmanager
 from pathlib import Path
 
 import bpy
@@ -23,7 +24,8 @@ from .camera import use_camera
 BACKGROUND_DEPTH = 1e9  # Cycles writes 1e10 where a ray hits nothing
 
 
-def configure_render(scene, samples: int, denoise: bool, threads: int, max_bounces: int = 4) -> None:
+def configure_render(scene, samples: int, denoise: bool, threads: int, max_bounces: int = 4,
+                     denoise_quality: str = "balanced") -> None:
     scene.render.engine = "CYCLES"
     scene.cycles.device = "CPU"
     scene.cycles.samples = samples
@@ -31,10 +33,10 @@ def configure_render(scene, samples: int, denoise: bool, threads: int, max_bounc
     scene.cycles.use_denoising = denoise
     if denoise:
         scene.cycles.denoiser = "OPENIMAGEDENOISE"
-        # ACCURATE prefiltering denoises albedo and normal too (three OIDN passes); at 4 samples
-        # FAST prefiltering and BALANCED quality look the same and cost a fraction
+        # ACCURATE prefiltering denoises albedo and normal too (three OIDN passes): at 2-4 samples
+        # it looks the same as FAST and costs a multiple
         scene.cycles.denoising_prefilter = "FAST"
-        scene.cycles.denoising_quality = "BALANCED"
+        scene.cycles.denoising_quality = denoise_quality.upper()
     scene.cycles.max_bounces = max_bounces
     scene.cycles.diffuse_bounces = min(2, max_bounces)
     scene.cycles.glossy_bounces = min(2, max_bounces)
@@ -53,6 +55,43 @@ def configure_render(scene, samples: int, denoise: bool, threads: int, max_bounc
     vl.use_pass_object_index = True
     vl.use_pass_material_index = True
     vl.use_pass_position = True
+    scene.update_tag()
+
+
+def set_cycles(scene, **settings) -> None:
+    """Change scene.cycles settings so that the next render sees them. Cycles' persistent session
+    re-reads them only when the scene is tagged as changed: a bare assignment (the seed, the
+    bounces) would silently apply to some later render instead (measured, Blender 4.5)."""
+    for k, v in settings.items():
+        setattr(scene.cycles, k, v)
+    scene.update_tag()
+
+
+@contextmanager
+def label_mode(scene):
+    """Settings for renders whose only use is the label passes (written at the first hit): one
+    sample at the pixel centre, no denoising, no bounces, no lights, no sky (the two top-down
+    renders take a third of the time). Everything is restored on exit, and nothing leaves Cycles'
+    scene on the way: objects hidden and shown again come back in another order, and later
+    frames' noise would then depend on what was rendered before. The sky goes through the view
+    layer's `use_sky`: changing the world itself makes Cycles recompute the Nishita sky (0.15 s)."""
+    c = scene.cycles
+    view_layer = scene.view_layers[0]
+    saved = {k: getattr(c, k) for k in ("samples", "use_denoising", "max_bounces")}
+    lights = [o.data for o in scene.objects if o.type == "LIGHT"]  # zero strength: left out
+    energies = [light.energy for light in lights]
+    use_sky = view_layer.use_sky
+    set_cycles(scene, samples=1, use_denoising=False, max_bounces=0)
+    for light in lights:
+        light.energy = 0.0
+    view_layer.use_sky = False
+    try:
+        yield
+    finally:
+        view_layer.use_sky = use_sky
+        for light, e in zip(lights, energies):
+            light.energy = e
+        set_cycles(scene, **saved)
 
 
 def _render_to_exr(scene, camera, width, height, tmpdir: Path, tag: str, png: Path | None = None,
@@ -107,11 +146,12 @@ def render_fisheye(scene, camera, width, height, out_dir: Path, name: str, tmpdi
 
 
 def render_topdown(scene, camera, size: int, occluders, world_to_ego: np.ndarray, tmpdir: Path) -> dict:
-    """Two label renders from above: everything, then with the overhead occluders hidden."""
+    """Two label renders from above: everything, then with the overhead occluders hidden from
+    camera rays (hidden, not removed: see label_mode)."""
     out = {}
     for group, hide in (("all", False), ("ground", True)):
         for obj in occluders:
-            obj.hide_render = hide
+            obj.visible_camera = not hide
         p = _render_to_exr(scene, camera, size, size, tmpdir, f"topdown_{group}")
         pos = np.stack([p["Position.X"], p["Position.Y"], p["Position.Z"]], -1).astype(np.float64)
         z = pos @ world_to_ego[2, :3] + world_to_ego[2, 3]
@@ -120,7 +160,7 @@ def render_topdown(scene, camera, size: int, occluders, world_to_ego: np.ndarray
         out[f"{group}.instance"] = inst
         out[f"{group}.height"] = np.where(p["Depth.Z"] < BACKGROUND_DEPTH, z, 0.0).astype(np.float32)
     for obj in occluders:
-        obj.hide_render = False
+        obj.visible_camera = True
     return out
 
 
@@ -129,20 +169,15 @@ def render_frame(built, frame_dir: Path, fisheye_sizes: dict, topdown_size: int,
     """Render every pass of the posed frame into frame_dir; returns timings (s)."""
     scene = bpy.context.scene
     frame_dir.mkdir(parents=True, exist_ok=True)
-    scene.cycles.seed = cycles_seed
     t0 = time.perf_counter()
-    scene.cycles.samples = render_cfg["samples"]
-    scene.cycles.use_denoising = render_cfg["denoise"]
+    set_cycles(scene, seed=cycles_seed, samples=render_cfg["samples"], use_denoising=render_cfg["denoise"])
     clock: dict = {}
     for name, cam in built.cameras.items():
         w, h = fisheye_sizes[name]
         render_fisheye(scene, cam, w, h, frame_dir, name, tmpdir, clock)
     t1 = time.perf_counter()
-    # labels only need sample 0 (the pixel centre): one sample, no denoising. (Also dropping the
-    # bounces here saved nothing measurable and made later frames' rgb depend on render history.)
-    scene.cycles.samples = 1
-    scene.cycles.use_denoising = False
-    td = render_topdown(scene, built.topdown, topdown_size, built.occluders, frame_meta["world_to_ego"], tmpdir)
+    with label_mode(scene):
+        td = render_topdown(scene, built.topdown, topdown_size, built.occluders, frame_meta["world_to_ego"], tmpdir)
     t2 = time.perf_counter()
     write_exr(frame_dir / "topdown.exr", td)
     t3 = time.perf_counter()

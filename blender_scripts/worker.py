@@ -52,7 +52,8 @@ def run_task(task: dict, state: dict) -> None:
         built = build_scene(recipe, rig, grid, td["height_m"], state["osl_dir"],
                             task["render"].get("camera_method", "osl"))
         configure_render(bpy.context.scene, task["render"]["samples"], task["render"]["denoise"],
-                         task["threads"], task["render"]["max_bounces"])
+                         task["threads"], task["render"]["max_bounces"],
+                         task["render"].get("denoise_quality", "balanced"))
         state.update(key=key, built=built, rig=rig, grid=grid)
         t_build = time.perf_counter() - t0
     built, rig = state["built"], state["rig"]

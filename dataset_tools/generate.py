@@ -23,6 +23,7 @@ from .recipe import RecipeError, load_recipe, read_yaml
 REPO = Path(__file__).resolve().parent.parent
 MARK = "@@bev "
 SPLITS = ("train", "easy", "medium", "hard")
+DENOISE_QUALITIES = ("high", "balanced", "fast")  # OpenImageDenoise's, as Cycles names them
 # `labels` belongs to the label fusion (dataset_tools.fuse) and is not read here
 CONFIG_KEYS = {"name", "rig", "fisheye_size", "topdown", "render", "frames", "scenes", "labels"}
 
@@ -53,7 +54,8 @@ def load_config(path) -> dict:
         "rig": str(_resolve(d.get("rig", "configs/rigs/default.yaml"), path.parent)),
         "fisheye_size": d.get("fisheye_size"),
         "topdown": {"size": 400, "height_m": 60.0, "bound": 25.0, **(d.get("topdown") or {})},
-        "render": {"samples": 4, "denoise": True, "max_bounces": 4, "camera_method": "osl", **(d.get("render") or {})},
+        "render": {"samples": 4, "denoise": True, "denoise_quality": "balanced", "max_bounces": 4, "camera_method": "osl",
+                   **(d.get("render") or {})},
         "frames": d.get("frames"),
     }
     fs = cfg["fisheye_size"]
@@ -63,11 +65,13 @@ def load_config(path) -> dict:
         raise ConfigError(f"{path}: topdown: unknown field '{sorted(set(cfg['topdown']) - {'size', 'height_m', 'bound'})[0]}'")
     if not (isinstance(cfg["topdown"]["size"], int) and cfg["topdown"]["size"] > 0):
         raise ConfigError(f"{path}: topdown.size: must be a positive whole number of pixels")
-    render_keys = {"samples", "denoise", "max_bounces", "camera_method"}
+    render_keys = {"samples", "denoise", "denoise_quality", "max_bounces", "camera_method"}
     if set(cfg["render"]) - render_keys:
         raise ConfigError(f"{path}: render: unknown field '{sorted(set(cfg['render']) - render_keys)[0]}'")
     if cfg["render"]["camera_method"] not in ("osl", "polynomial"):
         raise ConfigError(f"{path}: render.camera_method: must be osl or polynomial")
+    if cfg["render"]["denoise_quality"] not in DENOISE_QUALITIES:
+        raise ConfigError(f"{path}: render.denoise_quality: must be one of {', '.join(DENOISE_QUALITIES)}")
     if not (isinstance(cfg["render"]["samples"], int) and cfg["render"]["samples"] >= 1):
         raise ConfigError(f"{path}: render.samples: must be a whole number >= 1")
     if cfg["frames"] is not None and not (isinstance(cfg["frames"], int) and cfg["frames"] >= 1):

@@ -12,12 +12,14 @@ import sys
 import time
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 import yaml
 
 from dataset_tools.classes import CLASS_IDS, OVERHEAD_OCCLUDERS
 from dataset_tools.exr import read_exr
+from dataset_tools.generate import ConfigError, load_config
 from dataset_tools.recipe import FAMILIES, RecipeError, load_recipe, validate_recipe
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -86,6 +88,17 @@ def test_cli_bad_input_is_one_line_and_exit_2(tmp_path):
     assert len(lines) == 1 and "bad.yaml: traffic.speed_kmh" in lines[0], r.stderr
     r = _generate(TINY, tmp_path / "out", "--shard", "3/2", check=False)
     assert r.returncode == 2 and "--shard" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_dataset_config_render_fields(tmp_path):
+    cfg = yaml.safe_load(TINY.read_text())
+    cfg["render"]["denoise_quality"] = "ultra"
+    path = tmp_path / "cfg.yaml"
+    path.write_text(yaml.safe_dump(cfg))
+    with pytest.raises(ConfigError, match=r"cfg.yaml: render.denoise_quality: must be one of high, balanced, fast"):
+        load_config(path)
+    for path in sorted((ROOT / "configs" / "dataset").glob("*.yaml")):
+        assert load_config(path)["render"]["denoise_quality"] in ("high", "balanced", "fast")
 
 
 def _rect(x, y, yaw, l, w):
@@ -222,25 +235,18 @@ def test_topdown_occluders_differ_exactly_under_canopy_and_bridge(scene_tiny_run
     assert seen == set(occ.tolist()), "the tiny scenes must show both canopies and bridges from above"
 
 
-def _blocks(x, k=4):
-    h, w = x.shape[0] // k * k, x.shape[1] // k * k
-    return x[:h, :w].astype(np.float64).reshape(h // k, k, w // k, k).mean((1, 3))
-
-
 def _same_frame(d1: Path, d2: Path):
-    """Same files; label passes, distance, positions and metadata (bar timings) identical.
-    RGB is Monte Carlo noise at one sample and Cycles' persistent session makes that noise depend
-    on what the worker rendered before, so rgb must agree on 4x4-pixel block means."""
+    """Same files, every EXR channel (rgb included) and PNG pixel identical, same metadata bar the
+    timings. RGB is identical only because nothing leaves Cycles' persistent scene between renders
+    (see blender_scripts.render_frame.label_mode): this is what catches render-history effects."""
     assert sorted(p.name for p in d1.iterdir()) == sorted(p.name for p in d2.iterdir())
     for f in sorted(d1.glob("*.exr")):
         a, b = read_exr(f), read_exr(d2 / f.name)
         assert a.keys() == b.keys()
         for k in a:
-            if k in ("R", "G", "B"):
-                diff = np.abs(_blocks(a[k]) - _blocks(b[k])).mean()
-                assert diff < 0.02 * (1 + _blocks(a[k]).mean()), (f, k, diff)
-            else:
-                assert np.array_equal(a[k], b[k]), (f, k)
+            assert np.array_equal(a[k], b[k]), (f, k)
+    for f in sorted(d1.glob("*.png")):  # the files' metadata holds render times: compare pixels
+        assert np.array_equal(cv2.imread(str(f)), cv2.imread(str(d2 / f.name))), f
     m1, m2 = (json.loads((d / "meta.json").read_text()) for d in (d1, d2))
     m1.pop("timings"), m2.pop("timings")
     assert m1 == m2
@@ -250,8 +256,10 @@ def test_killed_run_resumes_to_the_same_files(scene_tiny_run, tmp_path):
     """A 3-scene run killed after its first frame and restarted equals the uninterrupted tiny run
     (the same seeds give identical passes in another process); a new seed changes the labels."""
     cfg = yaml.safe_load(TINY.read_text())
+    # the first scene is at night (street lamps, headlights) with bridges and canopies: its rgb
+    # showed render-history effects that a daytime scene did not
     cfg["scenes"] = [
-        {"recipe": "scenes/highway_straight.yaml", "split": "train"},
+        {"recipe": "scenes/urban_block.yaml", "split": "train"},
         {"recipe": "scenes/roundabout.yaml", "split": "train"},
         {"recipe": "scenes/highway_straight.yaml", "split": "train", "name": "reseeded",
          "overrides": {"seed": 777}},
