@@ -168,6 +168,10 @@ def validate_recipe(d, source: str = "recipe", overrides: dict | None = None) ->
             out[key] = _check(value, spec, f"{source}: {key}")
     out["traffic"].setdefault("seed", out["seed"])
     lay = out["layout"]
+    one_lane = {"roundabout": "the ring", "parking_lot": "the aisle"}
+    if out["family"] in one_lane and out["ego"]["lane"] != 0:
+        raise RecipeError(f"{source}: ego.lane: must be 0 for {out['family']} (the ego drives "
+                          f"{one_lane[out['family']]}), got {out['ego']['lane']}")
     if out["ego"]["lane"] >= lay["lanes_per_direction"]:
         raise RecipeError(f"{source}: ego.lane: {out['ego']['lane']} but the road has "
                           f"{lay['lanes_per_direction']} lane(s) per direction")

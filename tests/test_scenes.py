@@ -73,6 +73,8 @@ def test_recipe_errors_name_file_and_field(tmp_path):
         validate_recipe({"family": "motorway"}, "x")
     with pytest.raises(RecipeError, match=r"ego.lane"):
         validate_recipe({"family": "highway", "layout": {"lanes_per_direction": 1}, "ego": {"lane": 2}}, "x")
+    with pytest.raises(RecipeError, match=r"x: ego.lane: must be 0 for roundabout \(the ego drives the ring\)"):
+        validate_recipe({"family": "roundabout", "layout": {"lanes_per_direction": 2}, "ego": {"lane": 1}}, "x")
     for path in sorted((ROOT / "scenes").glob("*.yaml")):
         load_recipe(path)  # every shipped recipe is valid
 
