@@ -13,7 +13,7 @@ import json
 import sys
 from pathlib import Path
 
-from .reader import DEFAULT_CLASS_NAMES, INDEX_FILE, MANIFEST_FILE, SPLITS, DatasetError, _read_json
+from .reader import DEFAULT_CLASS_NAMES, INDEX_FILE, MANIFEST_FILE, SPLITS, DatasetError, _read_json, manifest_lines
 
 DEFAULT_GRID = {"x_min": -25.0, "x_max": 25.0, "y_min": -25.0, "y_max": 25.0, "res": 0.125}
 
@@ -24,16 +24,9 @@ def read_manifest(root) -> list[dict]:
     if not path.is_file():
         raise DatasetError(f"{path}: missing")
     entries: dict[tuple, dict] = {}
-    for n, line in enumerate(path.read_text().splitlines(), 1):
-        if not line.strip():
-            continue
-        try:
-            e = json.loads(line)
-        except json.JSONDecodeError as exc:
-            raise DatasetError(f"{path}: line {n}: not valid JSON ({exc.msg})") from None
-        for key in ("scene", "frame", "split", "dir"):
-            if key not in e:
-                raise DatasetError(f"{path}: line {n}: missing field '{key}'")
+    for n, e, problem in manifest_lines(path):
+        if problem:
+            raise DatasetError(f"{path}: line {n}: {problem}")
         try:
             e["frame"] = int(e["frame"])
         except (TypeError, ValueError):

@@ -118,6 +118,30 @@ def _read_json(path: Path):
         raise DatasetError(f"{path}: not valid JSON ({exc.msg}, line {exc.lineno})") from None
 
 
+MANIFEST_FIELDS = ("scene", "frame", "split", "dir")
+
+
+def manifest_lines(path: Path):
+    """Yield (line number, entry, problem) for every non-blank line of a manifest: the parsed entry
+    with every MANIFEST_FIELDS field and problem None, or entry None and a one-line problem."""
+    for n, line in enumerate(Path(path).read_text().splitlines(), 1):
+        if not line.strip():
+            continue
+        try:
+            e = json.loads(line)
+        except json.JSONDecodeError as exc:
+            yield n, None, f"not valid JSON ({exc.msg})"
+            continue
+        if not isinstance(e, dict):
+            yield n, None, "not a JSON object"
+            continue
+        missing = [k for k in MANIFEST_FIELDS if k not in e]
+        if missing:
+            yield n, None, f"missing field '{missing[0]}'"
+        else:
+            yield n, e, None
+
+
 def read_png(path, dtype=None, channels: int | None = None) -> np.ndarray:
     """A PNG as stored (uint8 or uint16; RGB order for colour); checks dtype and channel count."""
     path = Path(path)

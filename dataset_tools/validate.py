@@ -9,7 +9,6 @@ Prints one line per problem, naming the file and what is wrong, and exits 1 when
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 
@@ -18,7 +17,7 @@ import numpy as np
 from .classes import NUM_FINE_CLASSES
 from .fuse import _find, _read_exr, frame_grid, frame_rig, read_topdown
 from .reader import (INDEX_FILE, INSTANCE_PNG, LABEL_DIR, MANIFEST_FILE, SEMANTIC_PNG, VISIBILITY_PNG, DatasetError,
-                     _read_json, read_png)
+                     _read_json, manifest_lines, read_png)
 
 
 def check_manifest(root: Path, problems: list) -> list[dict]:
@@ -27,17 +26,9 @@ def check_manifest(root: Path, problems: list) -> list[dict]:
         problems.append(f"{path}: missing")
         return []
     entries, seen = [], set()
-    for n, line in enumerate(path.read_text().splitlines(), 1):
-        if not line.strip():
-            continue
-        try:
-            e = json.loads(line)
-        except json.JSONDecodeError as exc:
-            problems.append(f"{path}: line {n}: not valid JSON ({exc.msg})")
-            continue
-        missing = [k for k in ("scene", "frame", "split", "dir") if k not in e]
-        if missing:
-            problems.append(f"{path}: line {n}: missing field '{missing[0]}'")
+    for n, e, problem in manifest_lines(path):
+        if problem:
+            problems.append(f"{path}: line {n}: {problem}")
             continue
         key = (str(e["scene"]), e["frame"])
         if key in seen:

@@ -134,3 +134,20 @@ def test_bad_dataset_gets_one_line(tmp_path):
     r = run("dataset_tools.fuse", str(tmp_path), "--config", str(tmp_path / "cfg.yaml"))
     assert r.returncode == 2 and "labels: field 'tau' must be a positive number" in r.stderr
     assert "Traceback" not in r.stderr
+
+
+def test_bad_manifest_lines_are_named(tmp_path):
+    """index stops at the first bad line; validate lists every one; both name line and problem."""
+    from dataset_tools.index import read_manifest
+    from dataset_tools.reader import DatasetError
+    from dataset_tools.validate import check_manifest
+
+    (tmp_path / "manifest.jsonl").write_text('{"scene": "a", "frame": 0, "split": "train"}\n\n{oops\n7\n')
+    path = tmp_path / "manifest.jsonl"
+    with pytest.raises(DatasetError, match=rf"^{path}: line 1: missing field 'dir'$"):
+        read_manifest(tmp_path)
+    problems = []
+    assert check_manifest(tmp_path, problems) == []
+    assert problems == [f"{path}: line 1: missing field 'dir'",
+                        f"{path}: line 3: not valid JSON (Expecting property name enclosed in double quotes)",
+                        f"{path}: line 4: not a JSON object"]
