@@ -1,0 +1,141 @@
+"""Atomic writes and safe reads.
+
+Every file the project writes goes through `write_bytes_atomic` (or its text/JSON forms): a temp
+file beside the target, then a rename, so a reader never sees half a file and a kill leaves at most
+a hidden temp file, which `clean_stale_temps` removes on the next run. Reads of YAML and JSON raise
+the caller's error type with one line naming the file; YAML is read without aliases (a
+"billion laughs" file cannot blow up) and with a cap on size and nesting.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+from pathlib import Path
+
+import yaml
+
+from .errors import ConfigError, InputError
+
+MAX_YAML_BYTES = 4 * 1024 * 1024
+MAX_NESTING = 64
+_TEMP = re.compile(r"^\..+\.\d+\.tmp(\.[A-Za-z0-9]+)?$")
+
+
+def atomic_path(path) -> Path:
+    """A temp name beside `path` (same folder, so the final rename is atomic); it keeps the
+    suffix, so tools that pick a format by extension (OpenCV, torch) still can."""
+    path = Path(path)
+    return path.with_name(f".{path.name}.{os.getpid()}.tmp{path.suffix}")
+
+
+def write_bytes_atomic(path, data: bytes) -> None:
+    path = Path(path)
+    tmp = atomic_path(path)
+    try:
+        with open(tmp, "wb") as f:
+            f.write(data)
+        os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+
+
+def write_text_atomic(path, text: str) -> None:
+    write_bytes_atomic(path, text.encode())
+
+
+def write_json_atomic(path, obj, indent: int | None = 1) -> None:
+    write_text_atomic(path, json.dumps(obj, indent=indent))
+
+
+def write_with(path, writer) -> None:
+    """Atomically write a file produced by `writer(temp_path)` (for libraries that want a path)."""
+    path = Path(path)
+    tmp = atomic_path(path)
+    try:
+        writer(tmp)
+        os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+
+
+def clean_stale_temps(folder, recursive: bool = True) -> int:
+    """Remove temp files (`.<name>.<pid>.tmp[.ext]`) a killed run left behind; returns how many."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        return 0
+    n = 0
+    for p in folder.rglob(".*.tmp*") if recursive else folder.glob(".*.tmp*"):
+        if _TEMP.match(p.name) and p.is_file():
+            try:
+                p.unlink()
+                n += 1
+            except OSError:
+                pass
+    return n
+
+
+def read_text(path, error=InputError) -> str:
+    path = Path(path)
+    try:
+        return path.read_bytes().decode("utf-8")
+    except FileNotFoundError:
+        raise error(f"{path}: missing") from None
+    except IsADirectoryError:
+        raise error(f"{path}: is a folder, not a file") from None
+    except OSError as exc:
+        raise error(f"{path}: cannot read ({exc.strerror})") from None
+    except UnicodeDecodeError as exc:
+        raise error(f"{path}: not UTF-8 text (byte {exc.start})") from None
+
+
+def read_json(path, error=InputError):
+    text = read_text(path, error)
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise error(f"{path}: not valid JSON ({exc.msg}, line {exc.lineno})") from None
+    except RecursionError:
+        raise error(f"{path}: nested too deeply") from None
+
+
+class _NoAliasLoader(yaml.SafeLoader):
+    def compose_node(self, parent, index):
+        if self.check_event(yaml.AliasEvent):
+            event = self.peek_event()
+            raise yaml.YAMLError(f"YAML aliases (*name) are not allowed (line {event.start_mark.line + 1})")
+        self._depth = getattr(self, "_depth", 0) + 1
+        try:
+            if self._depth > MAX_NESTING:
+                raise yaml.YAMLError(f"nested deeper than {MAX_NESTING} levels")
+            return super().compose_node(parent, index)
+        finally:
+            self._depth -= 1
+
+
+def parse_yaml(text: str):
+    """YAML text -> data (no aliases, at most MAX_NESTING levels); raises yaml.YAMLError."""
+    return yaml.load(text, Loader=_NoAliasLoader)
+
+
+def read_yaml(path, error=ConfigError):
+    """A YAML file's content; an unreadable, oversized or malformed file raises `error` with one
+    line naming it."""
+    path = Path(path)
+    try:
+        size = path.stat().st_size
+    except OSError:
+        size = 0
+    if size > MAX_YAML_BYTES:
+        raise error(f"{path}: {size} bytes, more than a config may have ({MAX_YAML_BYTES})")
+    text = read_text(path, error)
+    try:
+        return parse_yaml(text)
+    except yaml.YAMLError as exc:
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise error(f"{path}: not valid YAML ({first})") from None
+    except RecursionError:
+        raise error(f"{path}: not valid YAML (nested too deeply)") from None
