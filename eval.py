@@ -14,31 +14,27 @@ picture and, for a sample of frames, pictures as the paper's Figs. 6-8.
 from __future__ import annotations
 
 import argparse
-import json
-import os
-import sys
+import io
 import time
 from pathlib import Path
 
 import numpy as np
 import torch
 
-from dataset_tools.classes import TRAIN_PALETTE
-from dataset_tools.reader import DatasetError, DatasetIndex, read_frame
-from geometry.cameras import CameraError
-from geometry.rig import RigError
-from model import CheckpointError, load_checkpoint
-from model.config import ConfigError, load_config
-from model.data import BevDataset, DataError
+from common.cli import run_cli
+from common.errors import InputError
+from common.files import write_bytes_atomic, write_figure_atomic, write_json_atomic, write_text_atomic
+from dataset_tools import SPLITS, TRAIN_PALETTE, DatasetIndex, colorize_train, read_frame
+from model import load_checkpoint
+from model.config import load_config
+from model.data import BevDataset
 from model.metrics import BevMetrics, confusion, occlusion_confusion
-
-SPLITS = ("train", "easy", "medium", "hard")
 BANDS = ((0.0, 10.0), (10.0, 20.0), (20.0, 25.0))
 TABLE_COLUMNS = [("miou", "mIoU"), ("iou/occlusion", "Occlusions"), ("iou/vehicle", "Vehicles"),
                  ("iou/lane_marking", "Markings"), ("iou/street", "Street"), ("iou/background", "Background")]
 
 
-class EvalError(ValueError):
+class EvalError(InputError):
     pass
 
 
@@ -105,13 +101,6 @@ def markdown_table(results: dict, method: str) -> str:
     return "\n".join(lines) + "\n"
 
 
-def colourise(sem: np.ndarray, vis: np.ndarray | None = None) -> np.ndarray:
-    img = TRAIN_PALETTE[np.clip(sem, 0, len(TRAIN_PALETTE) - 1)].astype(np.float32)
-    if vis is not None:
-        img *= (0.35 + 0.65 * (vis >= 0.5))[..., None]
-    return img.astype(np.uint8)
-
-
 def frame_picture(path: Path, images: dict, truth, vis, pred, pred_vis, class_names, title: str):
     """The four fisheye images, the truth (dimmed where invisible), the prediction, the visibility."""
     import matplotlib
@@ -128,7 +117,7 @@ def frame_picture(path: Path, images: dict, truth, vis, pred, pred_vis, class_na
         ax.imshow(images[n])
         ax.set_title(n, fontsize=9)
         ax.axis("off")
-    panels = [(colourise(truth, vis), "truth (dimmed: p(o) < 0.5)"), (colourise(pred), "prediction"),
+    panels = [(colorize_train(truth, vis), "truth (dimmed: p(o) < 0.5)"), (colorize_train(pred), "prediction"),
               (vis, "true visibility p(o)"), (pred_vis, "predicted visibility")]
     for i, (img, t) in enumerate(panels):
         ax = fig.add_subplot(gs[1, i])
@@ -167,18 +156,7 @@ def confusion_picture(path: Path, cm: np.ndarray, class_names, title: str):
 
 
 def _save_fig(fig, path: Path):
-    import matplotlib.pyplot as plt
-
-    tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp.png")
-    fig.savefig(tmp, dpi=80)
-    plt.close(fig)
-    os.replace(tmp, path)
-
-
-def _write(path: Path, text: str):
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    tmp.write_text(text)
-    os.replace(tmp, path)
+    write_figure_atomic(fig, path, dpi=80)
 
 
 @torch.no_grad()
@@ -196,16 +174,16 @@ def evaluate_split(model, cfg, index: DatasetIndex, split: str, out: Path, pictu
         sample = ds[i]
         ref = ds.refs[i]
         t0 = time.perf_counter()
-        o = model(sample["images"][None], sample["point_cell"][None], sample["intrinsics"][None])
+        o = model(sample["images"][None])  # the nominal cameras: the model's cached geometry
         scores.seconds += time.perf_counter() - t0
         pred = o["semantic"][0].argmax(0) + 1  # the head scores classes 1..K-1; invalid is never predicted
         occ = o["occlusion"][0]
         scores.update(pred, occ, sample["semantic"], sample["visibility"], ref.weather)
         name = f"{ref.scene}_{ref.frame:06d}"
         if save_predictions:
-            tmp = out / "predictions" / f".{name}.{os.getpid()}.tmp.npz"
-            np.savez_compressed(tmp, semantic=pred.numpy().astype(np.uint8), occlusion_logit=occ.numpy())
-            os.replace(tmp, out / "predictions" / f"{name}.npz")
+            buf = io.BytesIO()
+            np.savez_compressed(buf, semantic=pred.numpy().astype(np.uint8), occlusion_logit=occ.numpy())
+            write_bytes_atomic(out / "predictions" / f"{name}.npz", buf.getvalue())
         if i in picture_at:
             images = read_frame(ref, cameras=ds.names)["images"]
             frame_picture(out / f"frame_{split}_{name}.png", images, sample["semantic"].numpy(), sample["visibility"].numpy(),
@@ -216,7 +194,7 @@ def evaluate_split(model, cfg, index: DatasetIndex, split: str, out: Path, pictu
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(description="Evaluate a checkpoint with the paper's protocol (per-class IoU on visible cells).")
+    p = argparse.ArgumentParser(prog="eval.py", description="Evaluate a checkpoint with the paper's protocol (per-class IoU on visible cells).")
     p.add_argument("--checkpoint", required=True, help="a checkpoint of train.py (latest.pt or best.pt)")
     p.add_argument("--split", default="all", choices=[*SPLITS, "all"], help="all: every split that has frames, each scored alone")
     p.add_argument("--data", help="data set root (default: the one the checkpoint was trained on)")
@@ -226,43 +204,42 @@ def main(argv=None) -> int:
     p.add_argument("--save-predictions", action="store_true", help="write every frame's prediction as predictions/<scene>_<frame>.npz")
     p.add_argument("--threads", type=int, default=0, help="torch threads (default: torch's choice)")
     a = p.parse_args(argv)
-    try:
-        if a.threads:
-            torch.set_num_threads(a.threads)
-        expect = load_config(a.config) if a.config else None
-        if not Path(a.checkpoint).is_file():
-            raise EvalError(f"{a.checkpoint}: no such checkpoint")
-        model, cfg, ckpt = load_checkpoint(a.checkpoint, expect_config=expect)
-        model.eval()
-        if a.data:
-            cfg = {**cfg, "data": {**cfg["data"], "root": a.data}}
-        index = DatasetIndex(cfg["data"]["root"])
-        if index.rig.names != list(ckpt["rig"]["cameras"]):
-            raise EvalError(f"{index.root}: rig cameras {index.rig.names} differ from the checkpoint's {list(ckpt['rig']['cameras'])}")
-        if len(index.class_names) != ckpt.get("num_classes", 5):
-            raise EvalError(f"{index.root}: {len(index.class_names)} classes, the checkpoint predicts {ckpt.get('num_classes', 5)}")
-        splits = [s for s in SPLITS if index.splits.get(s)] if a.split == "all" else [a.split]
-        if not splits:
-            raise EvalError(f"{index.root}: no split has frames")
-        out = Path(a.out) if a.out else Path(a.checkpoint).parent / "eval"
-        out.mkdir(parents=True, exist_ok=True)
-        results = {s: evaluate_split(model, cfg, index, s, out, a.pictures, a.save_predictions) for s in splits}
-    except (EvalError, CheckpointError, ConfigError, DatasetError, DataError, RigError, CameraError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print("\ninterrupted", file=sys.stderr)
-        return 130
+    if a.pictures < 0:
+        raise EvalError(f"--pictures: must be >= 0, got {a.pictures}")
+    if a.threads < 0:
+        raise EvalError(f"--threads: must be >= 0, got {a.threads}")
+    if a.threads:
+        torch.set_num_threads(a.threads)
+    expect = load_config(a.config) if a.config else None
+    if not Path(a.checkpoint).is_file():
+        raise EvalError(f"{a.checkpoint}: no such checkpoint")
+    model, cfg, ckpt = load_checkpoint(a.checkpoint, expect_config=expect)
+    model.eval()
+    if a.data:
+        cfg = {**cfg, "data": {**cfg["data"], "root": a.data}}
+    index = DatasetIndex(cfg["data"]["root"])
+    if index.rig.names != list(ckpt["rig"]["cameras"]):
+        raise EvalError(f"{index.root}: rig cameras {index.rig.names} differ from the checkpoint's {list(ckpt['rig']['cameras'])}")
+    if len(index.class_names) != ckpt.get("num_classes", 5):
+        raise EvalError(f"{index.root}: {len(index.class_names)} classes, the checkpoint predicts {ckpt.get('num_classes', 5)}")
+    splits = [s for s in SPLITS if index.splits.get(s)] if a.split == "all" else [a.split]
+    if not splits:
+        raise EvalError(f"{index.root}: no split has frames")
+    out = Path(a.out) if a.out else Path(a.checkpoint).parent / "eval"
+    if out.exists() and not out.is_dir():
+        raise EvalError(f"--out: {out} is a file, not a folder")
+    out.mkdir(parents=True, exist_ok=True)
+    results = {s: evaluate_split(model, cfg, index, s, out, a.pictures, a.save_predictions) for s in splits}
     method = f"LSS-fisheye ({Path(a.checkpoint).parent.name}, {cfg['model']['pooling']} pooling)"
     report = {"checkpoint": str(a.checkpoint), "data": str(cfg["data"]["root"]), "step": ckpt.get("step"),
               "class_names": index.class_names, "splits": results}
-    _write(out / "metrics.json", json.dumps(report, indent=2))
+    write_json_atomic(out / "metrics.json", report, indent=2)
     table = markdown_table(results, method)
-    _write(out / "table.md", table)
+    write_text_atomic(out / "table.md", table)
     print(table)
     print(f"written {out}/metrics.json, table.md, confusion_*.png and frame_*.png")
     return 0
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    run_cli(main)

@@ -15,7 +15,7 @@ GOAL_FPS = 20.0
 
 
 def scene_boxes():
-    from dataset_tools.constructed import Box
+    from dataset_tools.format.constructed import Box
 
     return [
         Box(6.0, 10.5, -3.2, -1.2, 0.0, 1.5, "vehicle", 3),
@@ -32,8 +32,8 @@ def run() -> dict:
 
     cv2.setNumThreads(1)
     torch.set_num_threads(1)
-    from dataset_tools.constructed import write_frame
-    from dataset_tools.fuse import FusionConfig, fuse_frame, fuse_passes, load_frame_passes, write_labels
+    from dataset_tools.format.constructed import write_frame
+    from dataset_tools.labels.fusion import FusionConfig, fuse_frame, fuse_passes, load_frame_passes, write_labels
     from geometry.bev import BevGrid
     from geometry.rig import load_rig
 

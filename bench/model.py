@@ -182,7 +182,7 @@ def _peak_rss_mb() -> float:
 def _child_train(data_root: str, steps: int) -> dict:
     from torch.utils.data import DataLoader
 
-    from dataset_tools.reader import DatasetIndex
+    from dataset_tools.format.reader import DatasetIndex
     from model import build_model
     from model.config import load_config
     from model.data import BevDataset

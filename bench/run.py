@@ -16,6 +16,8 @@ import sys
 import time
 from pathlib import Path
 
+from common.files import write_text_atomic
+
 MODULES = ["bench.geometry", "bench.scenes", "bench.fusion", "bench.model"]
 OUT = Path("bench/out")
 
@@ -46,8 +48,8 @@ def main(argv=None) -> int:
             failed = True
     args.out.mkdir(parents=True, exist_ok=True)
     meta = {"python": sys.version.split()[0], "machine": platform.machine(), "cpus": _cpus(), "time": time.strftime("%Y-%m-%d %H:%M")}
-    _write(args.out / "results.json", json.dumps({"meta": meta, "results": results}, indent=2))
-    _write(args.out / "results.md", to_markdown(meta, results))
+    write_text_atomic(args.out / "results.json", json.dumps({"meta": meta, "results": results}, indent=2))
+    write_text_atomic(args.out / "results.md", to_markdown(meta, results))
     print(to_markdown(meta, results))
     print(f"written {args.out / 'results.json'} and {args.out / 'results.md'}")
     return 1 if failed else 0
@@ -74,12 +76,6 @@ def _cpus() -> int:
     import os
 
     return len(os.sched_getaffinity(0))
-
-
-def _write(path: Path, text: str) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(text)
-    tmp.replace(path)
 
 
 def _fmt(v) -> str:

@@ -13,8 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
-from dataset_tools.generate import REPO, load_config
-from dataset_tools.generate import run as generate
+from dataset_tools.generation.config import REPO, load_config
+from dataset_tools.generation.driver import run as generate
 
 SCENES = ("highway_straight", "urban_block")
 FRAMES = 3

@@ -13,7 +13,7 @@ import bpy
 import numpy as np
 from mathutils import Matrix
 
-from dataset_tools.classes import CLASS_IDS, OVERHEAD_OCCLUDERS
+from dataset_tools.labels.classes import CLASS_IDS, OVERHEAD_OCCLUDERS
 from . import assets, lighting
 from .camera import add_rig_camera, add_topdown_camera
 from .layouts import Layout, build_layout
@@ -118,7 +118,7 @@ def build_scene(recipe: dict, rig, grid, topdown_height: float = 60.0, osl_workd
 
 
 def _class_name(cid: int) -> str:
-    from dataset_tools.classes import CLASS_NAMES
+    from dataset_tools.labels.classes import CLASS_NAMES
 
     return CLASS_NAMES[cid]
 

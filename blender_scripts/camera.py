@@ -13,7 +13,6 @@ The mapping itself (frames, shader text, fit, top-down maths) lives in geometry/
 from __future__ import annotations
 
 import json
-import os
 import sys
 from pathlib import Path
 
@@ -21,6 +20,7 @@ import bpy
 import numpy as np
 from mathutils import Matrix
 
+from common.files import write_with
 from geometry.bev import BevGrid
 from geometry.blender import (
     BlenderFitError,
@@ -52,11 +52,12 @@ def _compile_osl(osl_path: Path) -> Path:
     oso = osl_path.with_suffix(".oso")
     if oso.is_file() and oso.stat().st_mtime >= osl_path.stat().st_mtime:
         return oso
-    tmp = oso.with_name(f"{oso.stem}.{os.getpid()}.tmp.oso")
-    if not _cycles.osl_compile(str(osl_path), str(tmp)):
-        tmp.unlink(missing_ok=True)
-        raise RuntimeError(f"{osl_path}: OSL compilation failed (see the console above)")
-    tmp.replace(oso)
+
+    def compile_to(tmp):
+        if not _cycles.osl_compile(str(osl_path), str(tmp)):
+            raise RuntimeError(f"{osl_path}: OSL compilation failed (see the console above)")
+
+    write_with(oso, compile_to)
     return oso
 
 

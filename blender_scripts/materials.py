@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import bpy
 
-from dataset_tools.classes import CLASS_IDS
+from dataset_tools.labels.classes import CLASS_IDS
 
 # material name -> fine class
 MATERIAL_CLASSES = {

@@ -9,7 +9,6 @@ hidden), each `semantic`, `instance` (uint32) and `height` (float32, ego-frame z
 
 from __future__ import annotations
 
-import os
 import time
 from contextlib import contextmanager
 from pathlib import Path
@@ -17,7 +16,9 @@ from pathlib import Path
 import bpy
 import numpy as np
 
-from dataset_tools.exr import read_exr, write_exr
+from dataset_tools.format.exr import read_exr, write_exr, write_png_atomic
+from dataset_tools.format.layout import FrameFiles
+from dataset_tools.format.reader import read_png
 
 from .camera import use_camera
 
@@ -114,9 +115,11 @@ def _render_to_exr(scene, camera, width, height, tmpdir: Path, tag: str, png: Pa
         settings.file_format = "PNG"
         settings.color_depth = "8"
         settings.color_mode = "RGB"
-        tmp = png.with_name(f".{png.name}.{os.getpid()}.tmp.png")
+        # Blender writes date and render-time text chunks: re-encode so equal pixels give equal bytes
+        tmp = tmpdir / f"{tag}.png"
         bpy.data.images["Render Result"].save_render(str(tmp), scene=scene)
-        os.replace(tmp, png)
+        write_png_atomic(png, read_png(tmp, np.uint8, 3))
+        tmp.unlink()
         if clock is not None:
             clock["write"] = clock.get("write", 0.0) + time.perf_counter() - t0
     passes = read_exr(raw)
@@ -129,9 +132,10 @@ def _render_to_exr(scene, camera, width, height, tmpdir: Path, tag: str, png: Pa
 
 
 def render_fisheye(scene, camera, width, height, out_dir: Path, name: str, tmpdir: Path, clock: dict) -> None:
-    p = _render_to_exr(scene, camera, width, height, tmpdir, f"cam_{name}", out_dir / f"cam_{name}.png", clock)
+    files = FrameFiles(out_dir)
+    p = _render_to_exr(scene, camera, width, height, tmpdir, f"cam_{name}", files.camera_png(name), clock)
     t0 = time.perf_counter()
-    write_exr(out_dir / f"cam_{name}.exr", {
+    write_exr(files.camera_exr(name), {
         "R": p["Combined.R"].astype(np.float16),
         "G": p["Combined.G"].astype(np.float16),
         "B": p["Combined.B"].astype(np.float16),
@@ -179,7 +183,7 @@ def render_frame(built, frame_dir: Path, fisheye_sizes: dict, topdown_size: int,
     with label_mode(scene):
         td = render_topdown(scene, built.topdown, topdown_size, built.occluders, frame_meta["world_to_ego"], tmpdir)
     t2 = time.perf_counter()
-    write_exr(frame_dir / "topdown.exr", td)
+    write_exr(FrameFiles(frame_dir).topdown, td)
     t3 = time.perf_counter()
     w = clock.get("write", 0.0)
     return {"fisheye_s": t1 - t0 - w, "topdown_s": t2 - t1, "write_s": t3 - t2 + w}

@@ -31,7 +31,8 @@ def frame_seed(scene_seed: int, frame: int) -> int:
 def run_task(task: dict, state: dict) -> None:
     import bpy  # noqa: F401  (first import starts Blender)
 
-    from dataset_tools.exr import write_text_atomic
+    from common.files import write_json_atomic
+    from dataset_tools.format.layout import FrameFiles, frame_dir_name
     from geometry.bev import BevGrid
     from geometry.rig import load_rig
 
@@ -60,7 +61,7 @@ def run_task(task: dict, state: dict) -> None:
     sizes = {rc.name: (rc.camera.width, rc.camera.height) for rc in rig}
     for frame in task["frames"]:
         t0 = time.perf_counter()
-        frame_dir = Path(task["out"]) / task["scene"] / f"{frame:06d}"
+        frame_dir = Path(task["out"]) / frame_dir_name(task["scene"], frame)
         fm = set_frame(built, frame)
         seed = frame_seed(recipe["seed"], frame)
         timings = render_frame(built, frame_dir, sizes, task["topdown"]["size"], task["render"], seed,
@@ -86,7 +87,7 @@ def run_task(task: dict, state: dict) -> None:
         # frame_s: this frame's posing, renders and writes (meta.json's own write, ~1 ms, excluded)
         meta["timings"] = dict(timings, build_s=t_build, frame_s=time.perf_counter() - t0)
         t_build = 0.0
-        write_text_atomic(frame_dir / "meta.json", json.dumps(meta, indent=1))
+        write_json_atomic(FrameFiles(frame_dir).meta, meta)
         files = sorted(p.name for p in frame_dir.iterdir() if not p.name.startswith("."))
         say(event="frame", scene=task["scene"], frame=frame, files=files, timings=meta["timings"])
 

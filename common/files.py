@@ -139,3 +139,15 @@ def read_yaml(path, error=ConfigError):
         raise error(f"{path}: not valid YAML ({first})") from None
     except RecursionError:
         raise error(f"{path}: not valid YAML (nested too deeply)") from None
+
+
+def write_figure_atomic(fig, path, dpi: int = 100) -> None:
+    """Save a matplotlib figure as a PNG, atomically, and close it."""
+    import io
+
+    import matplotlib.pyplot as plt
+
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=dpi, bbox_inches="tight")
+    plt.close(fig)
+    write_bytes_atomic(path, buf.getvalue())

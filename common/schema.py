@@ -99,16 +99,17 @@ class Num(Field):
 
 
 class Str(Field):
-    def __init__(self, choices=None, **kw):
+    def __init__(self, choices=None, empty: bool = False, **kw):
         super().__init__(**kw)
         self.choices = tuple(choices) if choices is not None else None
+        self.empty = empty
 
     def check(self, value, where):
         if self.choices is not None:
             if not isinstance(value, str) or value not in self.choices:
                 self.fail(where, f"must be one of {', '.join(self.choices)}, got {_show(value)}")
-        elif not isinstance(value, str) or not value:
-            self.fail(where, f"must be a non-empty string, got {_show(value)}")
+        elif not isinstance(value, str) or not (value or self.empty):
+            self.fail(where, f"must be a {'' if self.empty else 'non-empty '}string, got {_show(value)}")
         return value
 
 
@@ -181,14 +182,16 @@ class OneOf(Field):
 
 class Section(Field):
     """A mapping of named fields. Missing fields take their default (a field without one is
-    required); unknown fields are refused."""
+    required); unknown fields are refused. A `partial` section keeps only the fields given."""
 
-    def __init__(self, fields: dict, **kw):
+    def __init__(self, fields: dict, partial: bool = False, **kw):
         kw.setdefault("default", None)
         super().__init__(**kw)
-        self.fields = fields
+        self.fields, self.partial = fields, partial
 
     def defaults(self) -> dict:
+        if self.partial:
+            return {}
         return {k: f.defaults() for k, f in self.fields.items() if f.default is not MISSING}
 
     def validate(self, value, where: str, base: dict | None = None):
@@ -207,7 +210,7 @@ class Section(Field):
                 self.fail(sub, f"unknown field (known: {', '.join(map(str, self.fields))})")
             out[k] = self.fields[k].validate(v, sub)
         for k, f in self.fields.items():
-            if k not in out:
+            if k not in out and not self.partial:
                 self.fail(_join(where, k), "missing")
         return out
 

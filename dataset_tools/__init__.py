@@ -1,1 +1,19 @@
-"""Everything between renders and training: generation driver, EXR helpers, classes, labels, QA."""
+"""Everything between renders and training, by stage:
+
+- `generation/`: dataset configs, scene recipes and the render driver (`python -m dataset_tools.generate`)
+- `format/`: the on-disk layout of a data set (`layout`), EXR/PNG I/O, the index and the reader
+- `labels/`: fine classes, visibility p(o) and label fusion (`python -m dataset_tools.fuse`)
+- `qa/`: validate, inspect, consistency, stats and contact sheets
+
+The modules at this level are the commands (`python -m dataset_tools.<command>`).
+
+    from dataset_tools import DatasetIndex, read_frame
+    idx = DatasetIndex("data/small"); f = read_frame(idx.frames("train")[0])
+"""
+
+from .format.layout import SPLITS, DatasetError, FrameFiles, Manifest
+from .format.reader import DatasetIndex, FrameRef, downsample_labels, read_frame, read_labels
+from .labels.classes import TRAIN_CLASSES, TRAIN_PALETTE, colorize, colorize_train
+
+__all__ = ["DatasetIndex", "FrameRef", "read_frame", "read_labels", "downsample_labels", "DatasetError",
+           "FrameFiles", "Manifest", "SPLITS", "TRAIN_CLASSES", "TRAIN_PALETTE", "colorize", "colorize_train"]

@@ -1,84 +1,8 @@
-"""Contact sheets: per scene, one PNG with the four fisheye images and the two top-down views
-(first hit, and with overhead occluders hidden) coloured by fine class.
+"""The `python -m dataset_tools.contact_sheet` command (library: `dataset_tools.qa.contact_sheet`)."""
 
-    python -m dataset_tools.contact_sheet <out dir> [--frame N]
+from common.cli import run_cli
 
-writes <out>/<scene>/contact_sheet.png for every scene with that frame rendered (default: the
-scene's first finished frame).
-"""
-
-from __future__ import annotations
-
-import argparse
-import sys
-from pathlib import Path
-
-import cv2
-import numpy as np
-
-from .classes import colorize
-from .exr import read_exr, write_png_atomic
-
-
-def _fit(img: np.ndarray, h: int) -> np.ndarray:
-    w = max(1, round(img.shape[1] * h / img.shape[0]))
-    return cv2.resize(img, (w, h), interpolation=cv2.INTER_NEAREST)
-
-
-def _label(img, text):
-    img = img.copy()
-    cv2.putText(img, text, (4, 14), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (255, 255, 0), 1, cv2.LINE_AA)
-    return img
-
-
-def frame_sheet(frame_dir: Path, row_h: int = 240) -> np.ndarray:
-    cams = sorted(frame_dir.glob("cam_*.png"))
-    tiles = [_label(_fit(cv2.imread(str(p))[..., ::-1], row_h), p.stem[4:]) for p in cams]
-    td = read_exr(frame_dir / "topdown.exr")
-    for group in ("all", "ground"):
-        tiles.append(_label(_fit(colorize(td[f"{group}.semantic"]), row_h), f"top-down {group}"))
-    # two rows: cameras, then the two top-down views
-    n = len(cams)
-    rows = [tiles[: (n + 1) // 2], tiles[(n + 1) // 2: n], tiles[n:]]
-    rows = [r for r in rows if r]
-    width = max(sum(t.shape[1] for t in r) for r in rows)
-    out = []
-    for r in rows:
-        line = np.concatenate(r, axis=1)
-        out.append(np.pad(line, ((0, 0), (0, width - line.shape[1]), (0, 0))))
-    return np.concatenate(out, axis=0)
-
-
-def make_sheets(out_dir: Path, frame: int | None = None) -> list[Path]:
-    made = []
-    for scene_dir in sorted(p for p in Path(out_dir).iterdir() if p.is_dir() and not p.name.startswith(".")):
-        frames = sorted(d for d in scene_dir.iterdir() if d.is_dir() and (d / "meta.json").exists())
-        if frame is not None:
-            frames = [d for d in frames if d.name == f"{frame:06d}"]
-        if not frames:
-            continue
-        path = scene_dir / "contact_sheet.png"
-        write_png_atomic(path, frame_sheet(frames[0]))
-        made.append(path)
-    return made
-
-
-def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("out", type=Path, help="a generate --out directory")
-    ap.add_argument("--frame", type=int, default=None)
-    a = ap.parse_args(argv)
-    if not a.out.is_dir():
-        print(f"contact_sheet: {a.out}: not a directory", file=sys.stderr)
-        return 2
-    made = make_sheets(a.out, a.frame)
-    for p in made:
-        print(p)
-    if not made:
-        print(f"contact_sheet: {a.out}: no finished frames", file=sys.stderr)
-        return 1
-    return 0
-
+from .qa.contact_sheet import main
 
 if __name__ == "__main__":
-    sys.exit(main())
+    run_cli(main)

@@ -21,6 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
+from common.files import write_text_atomic
+
 from .bev import BevGrid
 from .cameras import Camera, CameraError, Cylindrical, KBTheta, RadialPoly, camera_from_dict
 
@@ -130,10 +132,7 @@ def write_osl_shader(camera: Camera, workdir=None) -> Path:
     workdir.mkdir(parents=True, exist_ok=True)
     path = workdir / f"{camera.model}_{hashlib.sha1(src.encode()).hexdigest()[:16]}.osl"
     if not path.is_file() or path.read_text() != src:
-        fd, tmp = tempfile.mkstemp(dir=workdir, suffix=".osl.tmp")
-        with os.fdopen(fd, "w") as f:
-            f.write(src)
-        os.replace(tmp, path)
+        write_text_atomic(path, src)
     return path
 
 

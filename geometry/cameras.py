@@ -27,11 +27,13 @@ from typing import Any, ClassVar
 import numpy as np
 import torch
 
+from common.errors import InputError
+
 SOLVE_TOL = 1e-13
 _EPS = 1e-12
 
 
-class CameraError(ValueError):
+class CameraError(InputError):
     """A calibration dictionary that cannot make a camera (names the field)."""
 
 

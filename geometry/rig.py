@@ -27,7 +27,10 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import yaml
+import torch
+
+from common.errors import InputError
+from common.files import read_json, read_yaml, write_text_atomic
 
 from .cameras import Camera, CameraError, camera_from_dict
 
@@ -35,7 +38,7 @@ from .cameras import Camera, CameraError, camera_from_dict
 FORWARD_CAMERA = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
 
 
-class RigError(ValueError):
+class RigError(InputError):
     """A rig file that cannot make a rig (names the file and field)."""
 
 
@@ -66,36 +69,20 @@ def mount_rotation(yaw_deg: float, pitch_deg: float, roll_deg: float = 0.0) -> n
 
 
 def quat_to_matrix(q) -> np.ndarray:
-    """[qx, qy, qz, qw] (scalar last) -> 3x3 rotation matrix; normalises q."""
-    x, y, z, w = np.asarray(q, dtype=np.float64) / np.linalg.norm(q)
-    return np.array(
-        [
-            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
-        ]
-    )
+    """[qx, qy, qz, qw] (scalar last, as WoodScape and scipy) -> 3x3 rotation matrix; normalises q."""
+    from kornia.geometry.conversions import quaternion_to_rotation_matrix
+
+    x, y, z, w = np.asarray(q, dtype=np.float64)
+    return quaternion_to_rotation_matrix(torch.tensor([w, x, y, z], dtype=torch.float64)).numpy()
 
 
 def matrix_to_quat(m: np.ndarray) -> list[float]:
-    """3x3 rotation -> [qx, qy, qz, qw] with qw >= 0."""
-    m = np.asarray(m, dtype=np.float64)
-    t = np.trace(m)
-    if t > 0:
-        s = math.sqrt(t + 1.0) * 2
-        q = [(m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s, 0.25 * s]
-    else:
-        i = int(np.argmax(np.diag(m)))
-        j, k = (i + 1) % 3, (i + 2) % 3
-        s = math.sqrt(1.0 + m[i, i] - m[j, j] - m[k, k]) * 2
-        q = [0.0, 0.0, 0.0, (m[k, j] - m[j, k]) / s]
-        q[i] = 0.25 * s
-        q[j] = (m[j, i] + m[i, j]) / s
-        q[k] = (m[k, i] + m[i, k]) / s
-    q = np.asarray(q)
-    if q[3] < 0:
-        q = -q
-    return [float(v) for v in q]
+    """3x3 rotation -> [qx, qy, qz, qw] (scalar last) with qw >= 0."""
+    from kornia.geometry.conversions import rotation_matrix_to_quaternion
+
+    w, x, y, z = rotation_matrix_to_quaternion(torch.as_tensor(np.asarray(m, dtype=np.float64))).tolist()
+    q = np.array([x, y, z, w])
+    return [float(v) for v in (-q if q[3] < 0 else q)]
 
 
 def make_transform(rotation: np.ndarray, translation) -> np.ndarray:
@@ -172,11 +159,11 @@ class Rig:
         return {"name": self.name, "cameras": {n: c.to_dict() for n, c in self.cameras.items()}}
 
     def save(self, path) -> None:
+        import yaml
+
         path = Path(path)
-        tmp = path.with_name(path.name + ".tmp")
         text = json.dumps(self.to_dict(), indent=2) if path.suffix == ".json" else yaml.safe_dump(self.to_dict(), sort_keys=False)
-        tmp.write_text(text)
-        tmp.replace(path)
+        write_text_atomic(path, text)
 
     def map_cameras(self, fn) -> "Rig":
         """A rig whose cameras are fn(camera) (e.g. resized), same extrinsics."""
@@ -189,15 +176,15 @@ def _extrinsics(e, where: str) -> np.ndarray:
     if "translation" not in e:
         raise RigError(f"{where}.extrinsics: missing 'translation'")
     t = e["translation"]
-    if not (isinstance(t, (list, tuple)) and len(t) == 3):
-        raise RigError(f"{where}.extrinsics.translation: must be a list of 3 numbers")
+    if not (isinstance(t, (list, tuple)) and len(t) == 3 and all(_finite(v) for v in t)):
+        raise RigError(f"{where}.extrinsics.translation: must be a list of 3 finite numbers, got {t!r}"[:200])
     has_q, has_r = "quaternion" in e, "rotation" in e
     if has_q == has_r:
         raise RigError(f"{where}.extrinsics: give exactly one of 'quaternion' or 'rotation'")
     try:
         if has_q:
             q = [float(v) for v in e["quaternion"]]
-            if len(q) != 4 or np.linalg.norm(q) < 1e-9:
+            if len(q) != 4 or not np.all(np.isfinite(q)) or np.linalg.norm(q) < 1e-9:
                 raise ValueError
             r = quat_to_matrix(q)
         else:
@@ -205,7 +192,10 @@ def _extrinsics(e, where: str) -> np.ndarray:
             unknown = set(rot) - {"yaw_deg", "pitch_deg", "roll_deg"}
             if unknown:
                 raise RigError(f"{where}.extrinsics.rotation: unknown key '{sorted(unknown)[0]}'")
-            r = mount_rotation(float(rot.get("yaw_deg", 0)), float(rot.get("pitch_deg", 0)), float(rot.get("roll_deg", 0)))
+            angles = [float(rot.get(k, 0)) for k in ("yaw_deg", "pitch_deg", "roll_deg")]
+            if not all(math.isfinite(a) for a in angles):
+                raise ValueError
+            r = mount_rotation(*angles)
         return make_transform(r, [float(v) for v in t])
     except RigError:
         raise
@@ -230,15 +220,12 @@ def rig_from_dict(d: dict, source: str = "rig") -> Rig:
     return Rig(cams, str(d.get("name", Path(source).stem)))
 
 
+def _finite(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+
 def _read_mapping(path: Path):
-    try:
-        text = path.read_text()
-    except OSError as exc:
-        raise RigError(f"{path}: cannot read ({exc.strerror})") from None
-    try:
-        return json.loads(text) if path.suffix == ".json" else yaml.safe_load(text)
-    except (json.JSONDecodeError, yaml.YAMLError) as exc:
-        raise RigError(f"{path}: not valid {'JSON' if path.suffix == '.json' else 'YAML'} ({str(exc).splitlines()[0]})") from None
+    return read_json(path, RigError) if path.suffix == ".json" else read_yaml(path, RigError)
 
 
 def load_rig(path) -> Rig:
@@ -266,7 +253,16 @@ def woodscape_camera(d: dict, source: str = "woodscape") -> RigCamera:
             raise RigError(f"{source}: intrinsic: missing '{k}'")
     if i.get("model", "radial_poly") != "radial_poly":
         raise RigError(f"{source}: intrinsic.model: only 'radial_poly' is a WoodScape model, got {i['model']!r}")
+    for k in need:
+        if not _finite(i[k]):
+            raise RigError(f"{source}: intrinsic.{k}: must be a finite number, got {i[k]!r}"[:200])
+    for k in ("width", "height"):
+        if not float(i[k]).is_integer() or not 1 <= i[k] <= 100_000:
+            raise RigError(f"{source}: intrinsic.{k}: must be a whole number of pixels in [1, 100000], got {i[k]!r}")
     w, h = float(i["width"]), float(i["height"])
+    for k, size in (("cx_offset", w), ("cy_offset", h)):
+        if abs(i[k]) > size / 2:
+            raise RigError(f"{source}: intrinsic.{k}: {i[k]} puts the principal point outside the {int(w)}x{int(h)} image")
     cam = {
         "model": "radial_poly",
         "width": int(w),

@@ -2,37 +2,32 @@
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import torch
 
-from geometry.bev import BevGrid
+from common.errors import InputError
+from common.files import write_with
 from geometry.rig import Rig, rig_from_dict
 
 
-class CheckpointError(ValueError):
+class CheckpointError(InputError):
     pass
-
-
-def model_grid(cfg: dict) -> BevGrid:
-    return BevGrid.from_dict(cfg["data"]["grid"])
 
 
 def build_model(cfg: dict, rig: Rig, num_classes: int = 5):
     """The model of a validated config for a rig (cameras at their native image size)."""
-    from .lss import LSSFisheye, input_rig
+    from .frustum import Frustum
+    from .lss import LSSFisheye
 
-    return LSSFisheye(cfg["model"], input_rig(rig, cfg["data"]["input_size"]), model_grid(cfg), cfg["data"]["input_size"], num_classes)
+    return LSSFisheye(cfg["model"], Frustum(rig, cfg), num_classes)
 
 
 def save_checkpoint(path, state: dict) -> None:
     """Atomic: write a temp file, then rename."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    torch.save(state, tmp)
-    os.replace(tmp, path)
+    write_with(path, lambda tmp: torch.save(state, tmp))
 
 
 def model_part(cfg: dict) -> dict:

@@ -1,145 +1,103 @@
-"""Training configs: defaults, validation (a wrong field -> ConfigError naming file and field).
+"""Training configs (configs/train/*.yaml): schema, defaults and validation.
 
-A config file overrides any subset of DEFAULTS; `_base` names another config file (relative to
-this one) to start from. Every leaf is type-checked against its default.
+A config file overrides any subset of the defaults; `_base` names another config file (relative to
+this one) to start from. A wrong field raises ConfigError naming the file and the field.
 """
 
 from __future__ import annotations
 
-import copy
 from pathlib import Path
 
-import yaml
-
-from dataset_tools.recipe import read_yaml
+from common.errors import ConfigError
+from common.files import parse_yaml, read_yaml
+from common.schema import Bool, Field, List, Num, OneOf, Section, Str, deep_merge, is_number
 
 from .pooling import POOLINGS
 
-DEFAULTS = {
-    "data": {
-        "root": "data/small",
-        "train_split": "train",
-        "val_split": "easy",
-        "input_size": [192, 120],  # (W, H) fed to the encoder
-        "grid": {"bound": 25.0, "res": 0.25},
-        "num_workers": 1,
-    },
-    "augment": {
-        "enabled": True,
-        "color_jitter": {"brightness": 0.3, "contrast": 0.5, "saturation": 0.3, "hue": 0.05},
-        "scale": [0.95, 1.05],
-        "rotation_deg": 5.0,
-        "crop": True,
-    },
-    "model": {
-        "encoder": {"widths": [16, 32, 64, 128], "blocks": [1, 1, 1]},
-        "stride": 8,
-        "context_channels": 32,
-        "depth": {"min": 1.0, "max": 37.0, "bins": 36, "spacing": "linear"},
-        "z_range": [-10.0, 10.0],
-        "pooling": "sum",
-        "bev_encoder": {"widths": [32, 64, 128], "blocks": [1, 1]},
-        "norm": "group",
-        "dropout": 0.0,
-    },
-    "loss": {
-        "class_weights": "uniform",
-        "visibility_weighting": True,
-        "occlusion_weight": 1.0,
-        "occlusion_target": "soft",
-    },
-    "train": {
-        "epochs": 120,
-        "max_steps": 0,  # 0: no limit
-        "batch_size": 4,  # global: split across DDP processes
-        "lr": 1e-3,
-        "weight_decay": 0.0,
-        "grad_clip": 5.0,
-        "seed": 0,
-        "checkpoint_every": 50,  # steps
-        "val_every": 0,  # steps; 0: at the end of each epoch
-        "val_max_frames": 0,  # 0: the whole validation split
-        "log_every": 10,
-        "image_every": 200,
-        "device": "auto",  # auto | cpu | cuda
-        "threads": 0,  # torch threads per process; 0: leave torch's default
-    },
-}
 
-CHOICES = {
-    ("model", "pooling"): POOLINGS,
-    ("model", "norm"): ("group", "batch"),
-    ("model", "depth", "spacing"): ("linear", "log"),
-    ("loss", "occlusion_target"): ("soft", "binary"),
-    ("train", "device"): ("auto", "cpu", "cuda"),
-}
-LIST_LENGTHS = {("data", "input_size"): 2, ("augment", "scale"): 2, ("model", "z_range"): 2,
-                ("model", "bev_encoder", "widths"): 3, ("model", "bev_encoder", "blocks"): 2}
+class GridField(Field):
+    """A BEV grid: {bound, res} or {x_min, x_max, y_min, y_max, res} (kept as given)."""
 
-
-class ConfigError(ValueError):
-    pass
-
-
-def _check(value, default, path: tuple, source: str):
-    name = ".".join(path)
-    if path == ("loss", "class_weights"):
-        if isinstance(value, str) and value in ("uniform", "paper"):
-            return value
-        if isinstance(value, list) and len(value) == 4 and all(isinstance(v, (int, float)) and v >= 0 for v in value):
-            return [float(v) for v in value]
-        raise ConfigError(f"{source}: {name}: must be 'uniform', 'paper' or a list of 4 non-negative weights")
-    if path == ("data", "grid"):
-        if not isinstance(value, dict):
-            raise ConfigError(f"{source}: {name}: must be a mapping")
+    def check(self, value, where):
         from geometry.bev import BevGrid
 
+        if not isinstance(value, dict) or not all(is_number(v) for v in value.values()):
+            self.fail(where, f"must be a mapping of numbers such as {{bound: 25, res: 0.25}}, got {value!r}"[:200])
         try:
             BevGrid.from_dict(value)
         except (ValueError, TypeError) as exc:
-            raise ConfigError(f"{source}: {name}: {exc}") from None
+            self.fail(where, str(exc))
         return dict(value)
-    if isinstance(default, dict):
-        if not isinstance(value, dict):
-            raise ConfigError(f"{source}: {name}: must be a mapping")
-        out = copy.deepcopy(default)
-        for k, v in value.items():
-            if k not in default:
-                raise ConfigError(f"{source}: {'.'.join(path + (str(k),))}: unknown field (fields: {', '.join(default)})")
-            out[k] = _check(v, default[k], path + (k,), source)
-        return out
-    if isinstance(default, bool):
-        if not isinstance(value, bool):
-            raise ConfigError(f"{source}: {name}: must be true or false, got {value!r}")
-        return value
-    if isinstance(default, int):
-        if isinstance(value, bool) or not isinstance(value, int) or value < 0:
-            raise ConfigError(f"{source}: {name}: must be a non-negative integer, got {value!r}")
-        return value
-    if isinstance(default, float):
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise ConfigError(f"{source}: {name}: must be a number, got {value!r}")
-        return float(value)
-    if isinstance(default, str):
-        if not isinstance(value, str):
-            raise ConfigError(f"{source}: {name}: must be a string, got {value!r}")
-        if path in CHOICES and value not in CHOICES[path]:
-            raise ConfigError(f"{source}: {name}: must be one of {', '.join(CHOICES[path])}, got {value!r}")
-        return value
-    if isinstance(default, list):
-        n = LIST_LENGTHS.get(path)
-        if not isinstance(value, list) or not value or (n and len(value) != n):
-            raise ConfigError(f"{source}: {name}: must be a list of {n or 'one or more'} numbers")
-        kind = type(default[0])
-        try:
-            if any(isinstance(v, bool) or not isinstance(v, (int, float)) for v in value):
-                raise TypeError
-            if kind is int and any(not float(v).is_integer() or v <= 0 for v in value):
-                raise TypeError
-            return [kind(v) for v in value]
-        except TypeError:
-            raise ConfigError(f"{source}: {name}: must be a list of {'positive integers' if kind is int else 'numbers'}") from None
-    raise ConfigError(f"{source}: {name}: unexpected value {value!r}")
+
+
+SCHEMA = Section({
+    "data": Section({
+        "root": Str(default="data/small"),
+        "train_split": Str(default="train"),
+        "val_split": Str(empty=True, default="easy"),  # "" for none
+        "input_size": List(Num(8, 4096, integer=True), length=2, default=[192, 120]),  # (W, H) fed to the encoder
+        "grid": GridField(default={"bound": 25.0, "res": 0.25}),  # geometry.bev.BevGrid.from_dict
+        "num_workers": Num(0, 64, integer=True, default=1),
+    }),
+    "augment": Section({
+        "enabled": Bool(default=True),
+        "color_jitter": Section({
+            "brightness": Num(0.0, 1.0, default=0.3),
+            "contrast": Num(0.0, 1.0, default=0.5),
+            "saturation": Num(0.0, 1.0, default=0.3),
+            "hue": Num(0.0, 0.5, default=0.05),
+        }),
+        "scale": List(Num(above=0, hi=4.0), length=2, default=[0.95, 1.05]),
+        "rotation_deg": Num(0.0, 45.0, default=5.0),
+        "crop": Bool(default=True),
+    }),
+    "model": Section({
+        "encoder": Section({
+            "widths": List(Num(1, 4096, integer=True), max_length=8, default=[16, 32, 64, 128]),
+            "blocks": List(Num(1, 64, integer=True), max_length=8, default=[1, 1, 1]),
+        }),
+        "stride": Num(2, 256, integer=True, default=8),
+        "context_channels": Num(1, 4096, integer=True, default=32),
+        "depth": Section({
+            "min": Num(above=0, hi=1000.0, default=1.0),
+            "max": Num(above=0, hi=1000.0, default=37.0),
+            "bins": Num(1, 1024, integer=True, default=36),
+            "spacing": Str(choices=("linear", "log"), default="linear"),
+        }),
+        "z_range": List(Num(-1000.0, 1000.0), length=2, default=[-10.0, 10.0]),
+        "pooling": Str(choices=POOLINGS, default="sum"),
+        "bev_encoder": Section({
+            "widths": List(Num(1, 4096, integer=True), length=3, default=[32, 64, 128]),
+            "blocks": List(Num(1, 64, integer=True), length=2, default=[1, 1]),
+        }),
+        "norm": Str(choices=("group", "batch"), default="group"),
+        "dropout": Num(0.0, 0.95, default=0.0),
+    }),
+    "loss": Section({
+        "class_weights": OneOf(Str(choices=("uniform", "paper")), List(Num(0.0, 1e6), length=4),
+                               wanted="'uniform', 'paper' or a list of 4 non-negative weights", default="uniform"),
+        "visibility_weighting": Bool(default=True),
+        "occlusion_weight": Num(0.0, 1e6, default=1.0),
+        "occlusion_target": Str(choices=("soft", "binary"), default="soft"),
+    }),
+    "train": Section({
+        "epochs": Num(1, 10**6, integer=True, default=120),
+        "max_steps": Num(0, 10**9, integer=True, default=0),  # 0: no limit
+        "batch_size": Num(1, 4096, integer=True, default=4),  # global: split across DDP processes
+        "lr": Num(above=0, hi=10.0, default=1e-3),
+        "weight_decay": Num(0.0, 10.0, default=0.0),
+        "grad_clip": Num(0.0, 1e6, default=5.0),
+        "seed": Num(0, 2**31 - 1, integer=True, default=0),
+        "checkpoint_every": Num(0, 10**9, integer=True, default=50),  # steps
+        "val_every": Num(0, 10**9, integer=True, default=0),  # steps; 0: at the end of each epoch
+        "val_max_frames": Num(0, 10**9, integer=True, default=0),  # 0: the whole validation split
+        "log_every": Num(0, 10**9, integer=True, default=10),
+        "image_every": Num(0, 10**9, integer=True, default=200),
+        "device": Str(choices=("auto", "cpu", "cuda"), default="auto"),
+        "threads": Num(0, 1024, integer=True, default=0),  # torch threads per process; 0: leave torch's default
+    }),
+})
+DEFAULTS = SCHEMA.defaults()
 
 
 def _semantic_checks(cfg: dict, source: str):
@@ -171,21 +129,14 @@ def _semantic_checks(cfg: dict, source: str):
 
 
 def validate(user: dict | None, source: str = "config") -> dict:
-    cfg = _check(user or {}, DEFAULTS, (), source)
+    cfg = SCHEMA.validate(user or {}, source)
     _semantic_checks(cfg, source)
     return cfg
 
 
-def _deep_merge(base: dict, over: dict) -> dict:
-    out = copy.deepcopy(base)
-    for k, v in over.items():
-        out[k] = _deep_merge(out[k], v) if isinstance(v, dict) and isinstance(out.get(k), dict) and k != "grid" else v
-    return out
-
-
 def read_config_file(path, _seen=()) -> dict:
     path = Path(path)
-    data = read_yaml(path, ConfigError) or {}
+    data = read_yaml(path) or {}
     if not isinstance(data, dict):
         raise ConfigError(f"{path}: must be a mapping of sections")
     base = data.pop("_base", None)
@@ -193,7 +144,7 @@ def read_config_file(path, _seen=()) -> dict:
         bpath = (path.parent / str(base)).resolve()
         if bpath in _seen:
             raise ConfigError(f"{path}: _base: circular reference to {bpath}")
-        data = _deep_merge(read_config_file(bpath, _seen + (bpath,)), data)
+        data = deep_merge(read_config_file(bpath, _seen + (bpath,)), data)
     return data
 
 
@@ -201,7 +152,7 @@ def load_config(path, overrides: dict | None = None) -> dict:
     """Read, merge `_base`, apply overrides ({'train': {'lr': ..}}), validate."""
     data = read_config_file(path)
     if overrides:
-        data = _deep_merge(data, overrides)
+        data = deep_merge(data, overrides)
     return validate(data, str(path))
 
 
@@ -216,7 +167,15 @@ def parse_override(text: str) -> dict:
     for p in parts[:-1]:
         d = d.setdefault(p, {})
     try:
-        d[parts[-1]] = yaml.safe_load(val)
-    except yaml.YAMLError:
+        d[parts[-1]] = parse_yaml(val)
+    except Exception:
         raise ConfigError(f"override {text!r}: value is not valid YAML") from None
+    return out
+
+
+def parse_overrides(texts) -> dict:
+    """Several --set values merged into one overrides mapping."""
+    out: dict = {}
+    for t in texts:
+        out = deep_merge(out, parse_override(t))
     return out

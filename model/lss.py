@@ -3,57 +3,44 @@ camera pooling -> BEV encoder -> semantic and occlusion heads."""
 
 from __future__ import annotations
 
-import torch
 import torch.nn.functional as F
 from torch import nn
 
-from geometry.bev import BevGrid
-from geometry.rig import Rig
-
-from .augment import base_transform, transform_camera
 from .bev_encoder import BevEncoder
 from .encoder import ImageEncoder
-from .lift import depth_bins, rig_intrinsics, rig_point_cells
+from .frustum import Frustum
 from .pooling import make_pooling
 from .splat import splat, splat_count, splat_index
 
 IMAGE_MEAN, IMAGE_STD = 0.45, 0.225
 
 
-def input_rig(rig: Rig, input_size) -> Rig:
-    """The rig as the model sees it without augmentation: each camera resized/cropped to input_size."""
-    return Rig([transform_camera(rc, base_transform(rc.camera, input_size)) for rc in rig], rig.name)
-
-
 class LSSFisheye(nn.Module):
-    def __init__(self, mcfg: dict, rig: Rig, grid: BevGrid, input_size, num_classes: int = 5):
-        """mcfg: the config's `model` section; rig: the cameras at the input size (`input_rig`)."""
+    def __init__(self, mcfg: dict, frustum: Frustum, num_classes: int = 5):
+        """mcfg: the config's `model` section; frustum: the lift geometry of the config and rig."""
         super().__init__()
-        self.grid, self.input_size, self.camera_names = grid, tuple(input_size), rig.names
+        self.frustum = frustum
+        self.grid, self.input_size, self.camera_names = frustum.grid, frustum.input_size, frustum.rig.names
         self.stride = mcfg["stride"]
         d = mcfg["depth"]
-        self.register_buffer("bins", torch.from_numpy(depth_bins(d["min"], d["max"], d["bins"], d["spacing"])).float(), persistent=False)
-        self.z_range = tuple(mcfg["z_range"])
         c = mcfg["context_channels"]
         self.encoder = ImageEncoder(mcfg["encoder"]["widths"], mcfg["encoder"]["blocks"], self.stride, d["bins"], c,
                                     mcfg["norm"], mcfg["dropout"])
-        # nominal geometry (no augmentation): precomputed once per rig
-        pc = rig_point_cells(rig, self.stride, self.input_size, self.bins.double().numpy(), grid, self.z_range)
+        pc, intr = frustum.nominal  # the cameras without augmentation
         self.register_buffer("nominal_point_cell", pc, persistent=False)
-        self.register_buffer("nominal_intrinsics", rig_intrinsics(rig), persistent=False)
+        self.register_buffer("nominal_intrinsics", intr, persistent=False)
         self.pooling_kind = mcfg["pooling"]
-        cover = splat_count(splat_index(pc[None], grid.rows * grid.cols)).view(len(rig), *grid.shape)
-        self.pool = make_pooling(self.pooling_kind, len(rig), c, grid.shape, cover)
+        grid = self.grid
+        cover = splat_count(splat_index(pc[None], grid.rows * grid.cols)).view(len(pc), *grid.shape)
+        self.pool = make_pooling(self.pooling_kind, len(pc), c, grid.shape, cover)
         self.bev = BevEncoder(c, mcfg["bev_encoder"]["widths"], mcfg["bev_encoder"]["blocks"], mcfg["norm"], mcfg["dropout"])
         self.semantic_head = nn.Conv2d(self.bev.out_channels, num_classes - 1, 1)  # classes 1..K-1; 0 is invalid
         self.occlusion_head = nn.Conv2d(self.bev.out_channels, 1, 1)  # logit of visibility p(o)
         self._index_cache = None
 
-    def point_cells(self, rig: Rig) -> torch.Tensor:
-        """(N, D, h, w) for another rig at the input size (e.g. an augmented one)."""
-        return rig_point_cells(rig, self.stride, self.input_size, self.bins.double().numpy(), self.grid, self.z_range)
-
     def _index(self, point_cell, batch: int):
+        """The splat index of this batch's cameras; for the nominal cameras it is built once per
+        batch size and device, and reused (training without augmentation, validation, eval)."""
         cells = self.grid.rows * self.grid.cols
         summed = self.pooling_kind == "sum"
         if point_cell is not None:
@@ -78,7 +65,7 @@ class LSSFisheye(nn.Module):
 
     def forward(self, images, point_cell=None, intrinsics=None):
         """images (B, N, 3, H, W) in [0, 1] at the input size; point_cell (B, N, D, h, w) and
-        intrinsics (B, N, 12) for augmented cameras (default: the rig's nominal ones).
+        intrinsics (B, N, 12) for augmented cameras (default: the rig's nominal ones, index cached).
         -> {'semantic': (B, K-1, X, Y) logits, 'occlusion': (B, X, Y) visibility logits}."""
         if images.ndim != 5 or images.shape[1] != len(self.camera_names) or tuple(images.shape[-1:-3:-1]) != self.input_size:
             raise ValueError(f"model: images must be (B, {len(self.camera_names)}, 3, {self.input_size[1]}, {self.input_size[0]}), got {tuple(images.shape)}")

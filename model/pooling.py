@@ -22,7 +22,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from .lift import INTRINSICS_DIM
+from .frustum import INTRINSICS_DIM
 
 POOLINGS = ("sum", "max", "weighted_sum", "sensors_per_cell", "intrinsics_embedding")
 

@@ -1,7 +1,7 @@
 """Splat: lifted frustum features -> per-camera BEV features, with precomputed indices.
 
 Each feature pixel (camera n, row h, column w) times each ray-distance bin d is a 3D point; the lift
-(`model.lift`) says which BEV cell it falls in (`point_cell`, -1 when outside the grid). The feature
+(`model.frustum`) says which BEV cell it falls in (`point_cell`, -1 when outside the grid). The feature
 of a point is depth[d, h, w] * context[:, h, w] (LSS's outer product). The splat sums them per cell:
 
     bev[b, n, cell, :] = sum over points p in cell of depth[b, n, p] * context[b, n, :, pixel(p)]

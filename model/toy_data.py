@@ -11,12 +11,14 @@ the ground plane and colouring it by the class there, so images and labels agree
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
-import cv2
 import numpy as np
 
+from common.files import write_json_atomic
+from dataset_tools.format.exr import write_png_atomic
+from dataset_tools.format.layout import INDEX, SPLITS, VISIBILITY_SCALE, FrameFiles, frame_dir_name
+from dataset_tools.labels.classes import TRAIN_CLASSES
 from geometry.bev import BevGrid
 from geometry.rig import load_rig
 
@@ -70,24 +72,21 @@ def write_toy_dataset(out, frames: int = 8, rig_path="configs/rigs/default.yaml"
         rig = rig.map_cameras(lambda c: c.resized(int(round(c.width * image_scale)), int(round(c.height * image_scale))))
     grid = BevGrid()
     rng = np.random.default_rng(seed)
-    index = {"splits": {s: [] for s in ("train", "easy", "medium", "hard")},
-             "class_names": ["invalid", "vehicle", "lane_marking", "street", "background"],
-             "grid": grid.to_dict(), "rig": rig.to_dict()}
+    index = {"splits": {s: [] for s in SPLITS}, "class_names": list(TRAIN_CLASSES), "grid": grid.to_dict(), "rig": rig.to_dict()}
     for n in range(frames):
         split = splits[n % len(splits)]
-        d = out / "toy" / f"{n:06d}"
-        (d / "labels").mkdir(parents=True, exist_ok=True)
+        rel = frame_dir_name("toy", n)
+        f = FrameFiles(out / rel)
+        f.labels.mkdir(parents=True, exist_ok=True)
         sem, vis = toy_labels(rng, grid)
         for rc in rig:
-            cv2.imwrite(str(d / f"cam_{rc.name}.png"), render_camera(rc, sem, grid, rng)[..., ::-1])
-        cv2.imwrite(str(d / "labels" / "semantic.png"), sem)
-        cv2.imwrite(str(d / "labels" / "instance.png"), (sem == 1).astype(np.uint16))
-        cv2.imwrite(str(d / "labels" / "visibility.png"), np.round(vis * 65535).astype(np.uint16))
-        (d / "meta.json").write_text(json.dumps({"scene": "toy", "frame": n}))
-        index["splits"][split].append({"dir": f"toy/{n:06d}", "scene": "toy", "frame": n})
-    tmp = out / "index.json.tmp"
-    tmp.write_text(json.dumps(index))
-    tmp.replace(out / "index.json")
+            write_png_atomic(f.camera_png(rc.name), render_camera(rc, sem, grid, rng))
+        write_png_atomic(f.semantic, sem)
+        write_png_atomic(f.instance, (sem == 1).astype(np.uint16))
+        write_png_atomic(f.visibility, np.round(vis * VISIBILITY_SCALE).astype(np.uint16))
+        write_json_atomic(f.meta, {"scene": "toy", "frame": n})
+        index["splits"][split].append({"dir": rel, "scene": "toy", "frame": n})
+    write_json_atomic(out / INDEX, index)
     return out
 
 

@@ -2,8 +2,9 @@
 
 import pytest
 
-from dataset_tools.fuse import FusionConfig
-from dataset_tools.reader import DatasetError, DatasetIndex
+from common.errors import ConfigError as FusionConfigError
+from dataset_tools.labels.fusion import FusionConfig
+from dataset_tools.format.reader import DatasetError, DatasetIndex
 from geometry.cameras import CameraError, camera_from_dict
 from model.config import ConfigError, validate
 
@@ -20,13 +21,13 @@ def test_zero_step_intervals_are_refused(field):
 
 
 @pytest.mark.parametrize("labels, message", [
-    ({"spread_step_m": -1}, "'spread_step_m' must be a number >= 0"),
-    ({"ego_box": [1, 2, 3]}, "'ego_box' must be"),
-    ({"ego_box": [3, 2, -1, 1]}, "'ego_box' must be"),
-    ({"reference_pixels": 0}, "'reference_pixels' must be a positive number"),
+    ({"spread_step_m": -1}, r"labels.spread_step_m: must be a number in \[0.0, 10.0\]"),
+    ({"ego_box": [1, 2, 3]}, "labels.ego_box: must be a list of 4"),
+    ({"ego_box": [3, 2, -1, 1]}, "labels: ego_box: must be"),
+    ({"reference_pixels": 0}, "labels.reference_pixels: must be a whole number > 0"),
 ])
 def test_fusion_config_fields(labels, message):
-    with pytest.raises(DatasetError, match=message):
+    with pytest.raises(FusionConfigError, match=message):
         FusionConfig.from_dict(labels, "small.yaml: labels")
 
 

@@ -106,7 +106,7 @@ def test_eval_of_a_trained_checkpoint_equals_a_recomputation_from_its_prediction
     import subprocess
     import sys
 
-    from dataset_tools.reader import DatasetIndex, downsample_labels, read_frame
+    from dataset_tools.format.reader import DatasetIndex, downsample_labels, read_frame
     from test_train import label_grid, run_train, write_config
 
     cfg = write_config(tmp_path / "c.yaml", tiny_dataset, train={"max_steps": 6}, augment={"enabled": False},

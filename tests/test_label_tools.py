@@ -8,8 +8,8 @@ import sys
 
 import pytest
 
-from dataset_tools.consistency import dataset_consistency
-from dataset_tools.reader import DatasetIndex, read_frame
+from dataset_tools.qa.consistency import dataset_consistency
+from dataset_tools.format.reader import DatasetIndex, read_frame
 
 PY = sys.executable
 
@@ -132,20 +132,19 @@ def test_bad_dataset_gets_one_line(tmp_path):
     assert r.returncode == 2 and r.stderr.strip() == f"error: {tmp_path / 'nothing' / 'manifest.jsonl'}: missing"
     (tmp_path / "cfg.yaml").write_text("labels: {tau: -1}\n")
     r = run("dataset_tools.fuse", str(tmp_path), "--config", str(tmp_path / "cfg.yaml"))
-    assert r.returncode == 2 and "labels: field 'tau' must be a positive number" in r.stderr
+    assert r.returncode == 2 and "labels.tau: must be a number > 0" in r.stderr
     assert "Traceback" not in r.stderr
 
 
 def test_bad_manifest_lines_are_named(tmp_path):
     """index stops at the first bad line; validate lists every one; both name line and problem."""
-    from dataset_tools.index import read_manifest
-    from dataset_tools.reader import DatasetError
-    from dataset_tools.validate import check_manifest
+    from dataset_tools.format.layout import DatasetError, Manifest
+    from dataset_tools.qa.validate import check_manifest
 
     (tmp_path / "manifest.jsonl").write_text('{"scene": "a", "frame": 0, "split": "train"}\n\n{oops\n7\n')
     path = tmp_path / "manifest.jsonl"
     with pytest.raises(DatasetError, match=rf"^{path}: line 1: missing field 'dir'$"):
-        read_manifest(tmp_path)
+        Manifest(tmp_path).entries()
     problems = []
     assert check_manifest(tmp_path, problems) == []
     assert problems == [f"{path}: line 1: missing field 'dir'",

@@ -14,7 +14,7 @@ from geometry.rig import RigCamera, load_rig
 from model import CheckpointError, build_model, load_checkpoint, save_checkpoint
 from model.augment import ViewTransform, base_transform, can_rotate, transform_camera, warp_image
 from model.config import ConfigError, validate
-from model.lift import camera_point_cells, depth_bins, feature_camera
+from model.frustum import camera_point_cells, depth_bins, feature_camera
 from model.losses import class_weights, occlusion_loss, semantic_loss
 from model.metrics import BevMetrics, confusion
 from model.splat import splat

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from dataset_tools.recipe import load_recipe
+from dataset_tools.generation.recipe import load_recipe
 from geometry.bev import BevGrid
 from geometry.rig import load_rig
 

@@ -17,10 +17,10 @@ import numpy as np
 import pytest
 import yaml
 
-from dataset_tools.classes import CLASS_IDS, OVERHEAD_OCCLUDERS
-from dataset_tools.exr import read_exr
-from dataset_tools.generate import ConfigError, load_config
-from dataset_tools.recipe import FAMILIES, RecipeError, load_recipe, validate_recipe
+from dataset_tools.labels.classes import CLASS_IDS, OVERHEAD_OCCLUDERS
+from dataset_tools.format.exr import read_exr
+from dataset_tools.generation.config import ConfigError, load_config
+from dataset_tools.generation.recipe import FAMILIES, RecipeError, load_recipe, validate_recipe
 
 ROOT = Path(__file__).resolve().parents[1]
 TINY = ROOT / "configs" / "dataset" / "tiny.yaml"

@@ -165,14 +165,14 @@ def real_mixed(tmp_path_factory):
 
 
 def label_grid(root):
-    from dataset_tools.reader import DatasetIndex
+    from dataset_tools.format.reader import DatasetIndex
 
     g = DatasetIndex(root).grid
     return {"x_min": g.x_min, "x_max": g.x_max, "y_min": g.y_min, "y_max": g.y_max, "res": g.res}
 
 
 def evaluate_checkpoint(model, cfg, root):
-    from dataset_tools.reader import DatasetIndex
+    from dataset_tools.format.reader import DatasetIndex
     from model.data import BevDataset
     from train import evaluate
 

@@ -1,4 +1,7 @@
-"""Lift: every feature pixel's ray (from geometry) times ray-distance bins -> BEV cells.
+"""The frustum: every feature pixel's ray (from geometry) times ray-distance bins -> BEV cells.
+
+`Frustum` is the one owner of this geometry: the data set asks it for the point cells of augmented
+cameras, the model for the nominal ones (computed once and cached with the splat index).
 
 Depth in a fisheye is the distance along the ray (z-depth is meaningless past 90 degrees off axis),
 so bin k puts a feature pixel's point at origin + d_k * ray, with the unit ray from `geometry`.
@@ -17,8 +20,12 @@ import math
 import numpy as np
 import torch
 
+from functools import cached_property
+
 from geometry.bev import BevGrid
 from geometry.rig import Rig, RigCamera
+
+from .augment import base_transform, transform_camera
 
 
 def depth_bins(d_min: float, d_max: float, bins: int, spacing: str = "linear") -> np.ndarray:
@@ -60,11 +67,6 @@ def camera_point_cells(rc: RigCamera, stride: int, image_size, bins: np.ndarray,
     return np.where(ok, row * grid.cols + col, -1).astype(np.int64)
 
 
-def rig_point_cells(rig: Rig, stride: int, image_size, bins, grid: BevGrid, z_range) -> torch.Tensor:
-    """(N, D, h, w) for every camera of a rig whose cameras all have image size `image_size`."""
-    return torch.from_numpy(np.stack([camera_point_cells(rc, stride, image_size, bins, grid, z_range) for rc in rig]))
-
-
 INTRINSIC_RADII = (0.25, 0.5, 0.75, 1.0)
 INTRINSICS_DIM = 4 + 2 * len(INTRINSIC_RADII)
 
@@ -86,5 +88,36 @@ def intrinsics_descriptor(camera) -> np.ndarray:
     return np.concatenate([[fx / w, fy / h, cx / w, cy / h], theta[2:]]).astype(np.float32)
 
 
-def rig_intrinsics(rig: Rig) -> torch.Tensor:
-    return torch.from_numpy(np.stack([intrinsics_descriptor(rc.camera) for rc in rig]))
+class Frustum:
+    """The lift geometry of a model config for a rig: which BEV cell each (camera, bin, feature
+    pixel) lands in, and each camera's intrinsics descriptor, for the cameras as the model sees
+    them (`transforms`: one view transform per camera from model.augment; None: the nominal ones)."""
+
+    def __init__(self, rig: Rig, cfg: dict):
+        m = cfg["model"]
+        self.rig = rig  # cameras at their native (rendered) size
+        self.input_size = tuple(cfg["data"]["input_size"])
+        self.grid = BevGrid.from_dict(cfg["data"]["grid"])
+        self.stride, self.z_range = m["stride"], tuple(m["z_range"])
+        d = m["depth"]
+        # float32-rounded, so the data set and the model's float32 buffer agree exactly
+        self.bins = depth_bins(d["min"], d["max"], d["bins"], d["spacing"]).astype(np.float32).astype(np.float64)
+
+    def nominal_transforms(self) -> list:
+        return [base_transform(rc.camera, self.input_size) for rc in self.rig]
+
+    def input_rig(self, transforms=None) -> Rig:
+        """The rig as the model sees it: each camera resized/cropped/rotated to the input size."""
+        transforms = self.nominal_transforms() if transforms is None else transforms
+        return Rig([transform_camera(rc, t) for rc, t in zip(self.rig, transforms)], self.rig.name)
+
+    def geometry(self, transforms=None) -> tuple[torch.Tensor, torch.Tensor]:
+        """(point_cell (N, D, h, w) int64, intrinsics (N, INTRINSICS_DIM) float32)."""
+        rig = self.input_rig(transforms)
+        pc = np.stack([camera_point_cells(rc, self.stride, self.input_size, self.bins, self.grid, self.z_range) for rc in rig])
+        intr = np.stack([intrinsics_descriptor(rc.camera) for rc in rig])
+        return torch.from_numpy(pc), torch.from_numpy(intr)
+
+    @cached_property
+    def nominal(self) -> tuple[torch.Tensor, torch.Tensor]:
+        return self.geometry(None)

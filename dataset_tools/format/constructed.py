@@ -6,14 +6,16 @@ Used by the label tests and the fusion bench, where the answer must be known wit
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from .classes import CLASS_IDS, OVERHEAD_OCCLUDERS, colorize
-from .exr import write_exr, write_png_atomic, write_text_atomic
+from common.files import write_json_atomic
+
+from ..labels.classes import CLASS_IDS, OVERHEAD_OCCLUDERS, colorize
+from .exr import write_exr, write_png_atomic
+from .layout import FrameFiles, Manifest, frame_dir_name
 
 NO_HIT = 1e10  # Cycles' background depth
 GROUND_INSTANCE = 1
@@ -77,7 +79,7 @@ def cast(origin: np.ndarray, rays: np.ndarray, boxes, ground_fn=ground_class_lan
 def render_camera(rc, boxes, ground_fn=ground_class_lanes) -> dict:
     """Exact passes of one rig camera: distance (float32, 1e10 where nothing is hit or the model is
     invalid), semantic and instance (uint32), position (float32 ego-frame xyz, (H, W, 3))."""
-    from .visibility import camera_table
+    from ..labels.visibility import camera_table
 
     t = camera_table(rc)
     h, w = t.shape
@@ -118,33 +120,32 @@ def write_frame(frame_dir, rig, grid, boxes, ground_fn=ground_class_lanes, meta:
     """A frame directory in the renderer's layout (blender_scripts/render_frame.py): cam_<name>.exr
     (R, G, B, distance, semantic, instance, position.X/Y/Z) and .png, topdown.exr ('all.' first hit
     and 'ground.' with overhead occluders hidden: semantic, instance, height), meta.json."""
-    frame_dir = Path(frame_dir)
-    frame_dir.mkdir(parents=True, exist_ok=True)
+    files = FrameFiles(frame_dir)
+    files.dir.mkdir(parents=True, exist_ok=True)
     for rc in rig:
         p = render_camera(rc, boxes, ground_fn)
         rgb = colorize(p["semantic"]).astype(np.float32) / 255.0
         ch = {c: rgb[..., k].astype(np.float16) for k, c in enumerate("RGB")}
         ch.update(distance=p["distance"], semantic=p["semantic"], instance=p["instance"])
         ch.update({f"position.{c}": p["position"][..., k] for k, c in enumerate("XYZ")})
-        write_exr(frame_dir / f"cam_{rc.name}.exr", ch)
-        write_png_atomic(frame_dir / f"cam_{rc.name}.png", colorize(p["semantic"]))
+        write_exr(files.camera_exr(rc.name), ch)
+        write_png_atomic(files.camera_png(rc.name), colorize(p["semantic"]))
     first = render_topdown(grid, boxes, False, ground_fn)
     hidden = render_topdown(grid, boxes, True, ground_fn)
     ch = {**{f"all.{k}": v for k, v in first.items()}, **{f"ground.{k}": v for k, v in hidden.items()}}
-    write_exr(frame_dir / "topdown.exr", ch)
+    write_exr(files.topdown, ch)
     m = {"rig": rig.to_dict(), "weather": {"preset": "clear_noon"}, "topdown": {"grid": grid.to_dict()}}
     m.update(meta or {})
-    write_text_atomic(frame_dir / "meta.json", json.dumps(m, indent=1))
-    return frame_dir
+    write_json_atomic(files.meta, m)
+    return files.dir
 
 
 def write_dataset(root, rig, grid, frames) -> Path:
     """frames: list of (scene, frame, split, boxes). Writes the frames and manifest.jsonl."""
     root = Path(root)
-    lines = []
+    manifest = Manifest(root)
     for scene, frame, split, boxes in frames:
-        rel = f"{scene}/{frame:06d}"
+        rel = frame_dir_name(scene, frame)
         write_frame(root / rel, rig, grid, boxes)
-        lines.append(json.dumps({"scene": scene, "frame": frame, "split": split, "dir": rel}))
-    write_text_atomic(root / "manifest.jsonl", "\n".join(lines) + "\n")
+        manifest.append({"scene": scene, "frame": frame, "split": split, "dir": rel})
     return root

@@ -11,27 +11,15 @@ Nothing here imports torch; `.rig` and `.grid` import `geometry` (which does) on
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
 import numpy as np
 
-INDEX_FILE = "index.json"
-MANIFEST_FILE = "manifest.jsonl"
-SPLITS = ("train", "easy", "medium", "hard")
-LABEL_DIR = "labels"
-SEMANTIC_PNG = "semantic.png"
-INSTANCE_PNG = "instance.png"
-VISIBILITY_PNG = "visibility.png"
-VISIBILITY_SCALE = 65535.0
-DEFAULT_CLASS_NAMES = ["invalid", "vehicle", "lane_marking", "street", "background"]
+from common.files import read_json
 
-
-class DatasetError(ValueError):
-    """A data set file that cannot be read as expected (the message names the file and field)."""
-
+from .layout import INDEX, MANIFEST, VISIBILITY_SCALE, DatasetError, FrameFiles, Manifest
 
 @dataclass(frozen=True)
 class FrameRef:
@@ -52,27 +40,35 @@ class DatasetIndex:
 
     def __init__(self, root):
         self.root = Path(root)
-        path = self.root / INDEX_FILE
+        path = self.root / INDEX
         if path.is_file():
-            self.data = _read_json(path)
-        elif (self.root / MANIFEST_FILE).is_file():
+            self.data = read_json(path, DatasetError)
+        elif Manifest(self.root).exists():
             from .index import build_index
 
             self.data = build_index(self.root)
         else:
-            raise DatasetError(f"{path}: missing (and no {MANIFEST_FILE} to build it from)")
-        for key in ("splits", "class_names", "grid"):
-            if key not in self.data:
-                raise DatasetError(f"{path}: missing field '{key}'")
+            raise DatasetError(f"{path}: missing (and no {MANIFEST} to build it from)")
+        if not isinstance(self.data, dict):
+            raise DatasetError(f"{path}: must be a JSON object")
+        for key, kind in (("splits", dict), ("class_names", list), ("grid", dict)):
+            if not isinstance(self.data.get(key), kind):
+                raise DatasetError(f"{path}: field '{key}' missing or not a {'mapping' if kind is dict else 'list'}")
+        if not self.data["class_names"] or not all(isinstance(n, str) for n in self.data["class_names"]):
+            raise DatasetError(f"{path}: field 'class_names' must be a list of names")
         self.class_names: list[str] = list(self.data["class_names"])
         self.splits: dict[str, list[FrameRef]] = {}
         for split, entries in self.data["splits"].items():
+            if not isinstance(entries, list):
+                raise DatasetError(f"{path}: splits.{split}: must be a list of frames")
             refs = []
             for n, e in enumerate(entries):
                 try:
                     refs.append(
                         FrameRef(self.root / e["dir"], str(e["scene"]), int(e["frame"]), split, str(e.get("weather", "")))
                     )
+                    if Path(e["dir"]).is_absolute() or ".." in Path(e["dir"]).parts:
+                        raise ValueError
                 except (KeyError, TypeError, ValueError):
                     raise DatasetError(f"{path}: splits.{split}[{n}]: needs 'dir', 'scene' and 'frame'") from None
             self.splits[split] = refs
@@ -80,7 +76,7 @@ class DatasetIndex:
 
     def frames(self, split: str) -> list[FrameRef]:
         if split not in self.splits:
-            raise DatasetError(f"{self.root / INDEX_FILE}: no split '{split}' (have: {', '.join(self.splits)})")
+            raise DatasetError(f"{self.root / INDEX}: no split '{split}' (have: {', '.join(self.splits)})")
         return list(self.splits[split])
 
     def all_frames(self) -> list[FrameRef]:
@@ -100,46 +96,13 @@ class DatasetIndex:
             from geometry.rig import rig_from_dict
 
             if "rig" not in self.data:
-                raise DatasetError(f"{self.root / INDEX_FILE}: missing field 'rig'")
-            self._rig = rig_from_dict(self.data["rig"], f"{self.root / INDEX_FILE}: rig")
+                raise DatasetError(f"{self.root / INDEX}: missing field 'rig'")
+            self._rig = rig_from_dict(self.data["rig"], f"{self.root / INDEX}: rig")
         return self._rig
 
     def __repr__(self) -> str:
         sizes = ", ".join(f"{k}={len(v)}" for k, v in self.splits.items())
         return f"DatasetIndex({self.root}, {sizes})"
-
-
-def _read_json(path: Path):
-    try:
-        return json.loads(Path(path).read_text())
-    except OSError as exc:
-        raise DatasetError(f"{path}: cannot read ({exc.strerror})") from None
-    except json.JSONDecodeError as exc:
-        raise DatasetError(f"{path}: not valid JSON ({exc.msg}, line {exc.lineno})") from None
-
-
-MANIFEST_FIELDS = ("scene", "frame", "split", "dir")
-
-
-def manifest_lines(path: Path):
-    """Yield (line number, entry, problem) for every non-blank line of a manifest: the parsed entry
-    with every MANIFEST_FIELDS field and problem None, or entry None and a one-line problem."""
-    for n, line in enumerate(Path(path).read_text().splitlines(), 1):
-        if not line.strip():
-            continue
-        try:
-            e = json.loads(line)
-        except json.JSONDecodeError as exc:
-            yield n, None, f"not valid JSON ({exc.msg})"
-            continue
-        if not isinstance(e, dict):
-            yield n, None, "not a JSON object"
-            continue
-        missing = [k for k in MANIFEST_FIELDS if k not in e]
-        if missing:
-            yield n, None, f"missing field '{missing[0]}'"
-        else:
-            yield n, e, None
 
 
 def read_png(path, dtype=None, channels: int | None = None) -> np.ndarray:
@@ -159,17 +122,13 @@ def read_png(path, dtype=None, channels: int | None = None) -> np.ndarray:
     return np.ascontiguousarray(a)
 
 
-def camera_names(frame_dir) -> list[str]:
-    """Camera names of a frame directory, from its cam_<name>.png files (sorted)."""
-    return sorted(p.stem[4:] for p in Path(frame_dir).glob("cam_*.png"))
-
-
 def read_labels(frame_dir) -> dict:
     """semantic (H, W) uint8, instance (H, W) uint16, visibility (H, W) float32 in [0, 1]."""
-    d = Path(frame_dir) / LABEL_DIR
-    sem = read_png(d / SEMANTIC_PNG, np.uint8, 1)
-    ins = read_png(d / INSTANCE_PNG, np.uint16, 1)
-    vis = read_png(d / VISIBILITY_PNG, np.uint16, 1)
+    f = FrameFiles(frame_dir)
+    d = f.labels
+    sem = read_png(f.semantic, np.uint8, 1)
+    ins = read_png(f.instance, np.uint16, 1)
+    vis = read_png(f.visibility, np.uint16, 1)
     if not sem.shape == ins.shape == vis.shape:
         raise DatasetError(f"{d}: label shapes differ (semantic {sem.shape}, instance {ins.shape}, visibility {vis.shape})")
     return {"semantic": sem, "instance": ins, "visibility": vis.astype(np.float32) / VISIBILITY_SCALE}
@@ -179,15 +138,25 @@ def read_frame(ref, cameras=None) -> dict:
     """One frame: images {name: (H, W, 3) uint8 RGB}, semantic (uint8), instance (uint16),
     visibility (float32 in [0, 1]) and meta (dict). `ref` is a FrameRef or a frame directory;
     `cameras` picks camera names (default: every cam_<name>.png of the frame)."""
-    frame_dir = Path(ref.dir if isinstance(ref, FrameRef) else ref)
-    names = camera_names(frame_dir) if cameras is None else list(cameras)
+    files = FrameFiles(ref.dir if isinstance(ref, FrameRef) else ref)
+    names = files.camera_names() if cameras is None else list(cameras)
     if not names:
-        raise DatasetError(f"{frame_dir}: no cam_<name>.png images")
-    images = {n: read_png(frame_dir / f"cam_{n}.png", np.uint8, 3) for n in names}
-    out = {"images": images, **read_labels(frame_dir)}
-    meta_path = frame_dir / "meta.json"
-    out["meta"] = _read_json(meta_path) if meta_path.is_file() else {}
+        raise DatasetError(f"{files.dir}: no cam_<name>.png images")
+    images = {n: read_png(files.camera_png(n), np.uint8, 3) for n in names}
+    out = {"images": images, **read_labels(files.dir)}
+    out["meta"] = read_meta(files.dir)
     return out
+
+
+def read_meta(frame_dir) -> dict:
+    """A frame's meta.json ({} when the frame has none); anything but a JSON object is refused."""
+    path = FrameFiles(frame_dir).meta
+    if not path.is_file():
+        return {}
+    meta = read_json(path, DatasetError)
+    if not isinstance(meta, dict):
+        raise DatasetError(f"{path}: must be a JSON object")
+    return meta
 
 
 def downsample_labels(semantic: np.ndarray, visibility: np.ndarray, factor: int, priority=(2, 1), num_classes: int = 5):

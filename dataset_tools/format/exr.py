@@ -6,19 +6,14 @@ A multi-layer file is just dotted channel names ("all.semantic", "position.X").
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import numpy as np
 import OpenEXR
 
+from common.files import write_bytes_atomic, write_with
+
 _DTYPES = (np.float16, np.float32, np.uint32)
-
-
-def atomic_path(path) -> Path:
-    """A temp name beside `path` (same folder, so the final rename is atomic)."""
-    path = Path(path)
-    return path.with_name(f".{path.name}.{os.getpid()}.tmp")
 
 
 def write_exr(path, channels: dict[str, np.ndarray], compression=None) -> None:
@@ -39,14 +34,12 @@ def write_exr(path, channels: dict[str, np.ndarray], compression=None) -> None:
         "compression": compression if compression is not None else OpenEXR.ZIP_COMPRESSION,
         "type": OpenEXR.scanlineimage,
     }
-    tmp = atomic_path(path)
-    try:
+
+    def write(tmp):
         with OpenEXR.File(header, data) as f:
             f.write(str(tmp))
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
+
+    write_with(path, write)
 
 
 def read_exr(path, part: int = 0) -> dict[str, np.ndarray]:
@@ -58,26 +51,18 @@ def read_exr(path, part: int = 0) -> dict[str, np.ndarray]:
     return out
 
 
-def write_bytes_atomic(path, data: bytes) -> None:
-    path = Path(path)
-    tmp = atomic_path(path)
-    try:
-        tmp.write_bytes(data)
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
-
-
-def write_text_atomic(path, text: str) -> None:
-    write_bytes_atomic(path, text.encode())
-
-
-def write_png_atomic(path, rgb: np.ndarray) -> None:
-    """RGB uint8 (H, W, 3) -> PNG, atomically."""
+def encode_png(a: np.ndarray) -> bytes:
+    """A PNG of a 2D (gray, uint8 or uint16) or (H, W, 3) RGB array, with no text chunks (no date),
+    so equal pixels give equal bytes."""
     import cv2
 
-    ok, buf = cv2.imencode(".png", np.ascontiguousarray(rgb[..., ::-1]))
+    a = np.ascontiguousarray(a[..., ::-1] if a.ndim == 3 else a)
+    ok, buf = cv2.imencode(".png", a)
     if not ok:
-        raise OSError(f"{path}: PNG encoding failed")
-    write_bytes_atomic(path, buf.tobytes())
+        raise OSError(f"PNG encoding failed for an array of {a.shape} {a.dtype}")
+    return buf.tobytes()
+
+
+def write_png_atomic(path, image: np.ndarray) -> None:
+    """RGB uint8 (H, W, 3) or one-channel uint8/uint16 (H, W) -> PNG, atomically."""
+    write_bytes_atomic(path, encode_png(image))

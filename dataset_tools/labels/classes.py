@@ -80,3 +80,13 @@ def colorize(semantic: np.ndarray) -> np.ndarray:
 
 # Colours of the training classes for pictures (invalid, vehicle, lane marking, street, background).
 TRAIN_PALETTE = np.array([[0, 0, 0], [220, 40, 40], [250, 250, 250], [110, 110, 120], [70, 150, 70]], dtype=np.uint8)
+
+
+def colorize_train(semantic: np.ndarray, visibility: np.ndarray | None = None) -> np.ndarray:
+    """Training-class ids (H, W) -> RGB uint8 picture; with `visibility`, cells with p(o) < 0.5
+    are dimmed (what no camera sees)."""
+    img = TRAIN_PALETTE[np.clip(np.asarray(semantic).astype(np.int64), 0, len(TRAIN_PALETTE) - 1)]
+    if visibility is None:
+        return img
+    dim = 0.35 + 0.65 * (np.asarray(visibility) >= 0.5)
+    return (img * dim[..., None]).astype(np.uint8)

@@ -1,0 +1,187 @@
+"""Check a data set: every frame's files present, readable, right shapes and value ranges, no NaN,
+manifest (and index) consistent.
+
+    python -m dataset_tools.validate <dataset> [--no-labels]
+
+Prints one line per problem, naming the file and what is wrong, and exits 1 when there are any.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from common.files import read_json
+
+from ..format.index import meta_rig
+from ..format.layout import INDEX, MANIFEST, DatasetError, FrameFiles, Manifest, frame_dir_name
+from ..format.reader import read_meta, read_png
+from ..labels.classes import NUM_FINE_CLASSES
+from ..labels.fusion import _find, frame_grid, frame_rig, read_exr_checked, read_topdown
+
+
+def check_manifest(root: Path, problems: list) -> list[dict]:
+    manifest = Manifest(root)
+    path = manifest.path
+    if not manifest.exists():
+        problems.append(f"{path}: missing")
+        return []
+    entries, seen = [], set()
+    for n, e, problem in manifest.lines():
+        if problem:
+            problems.append(f"{path}: line {n}: {problem}")
+            continue
+        key = (str(e["scene"]), e["frame"])
+        if key in seen:
+            problems.append(f"{path}: line {n}: frame {e['scene']}/{e['frame']} listed twice")
+        seen.add(key)
+        if e["dir"] != frame_dir_name(e["scene"], e["frame"]):
+            problems.append(f"{path}: line {n}: field 'dir' is {e['dir']!r}, expected '<scene>/<frame:06d>'")
+        if not (root / e["dir"]).is_dir():
+            problems.append(f"{root / e['dir']}: missing (listed in {MANIFEST} line {n})")
+            continue
+        for f in e.get("files", []):
+            if not (root / e["dir"] / f).exists():
+                problems.append(f"{root / e['dir'] / f}: missing (listed in {MANIFEST} line {n})")
+        entries.append(e)
+    if not entries and not problems:
+        problems.append(f"{path}: no frames")
+    return entries
+
+
+def check_index(root: Path, entries: list[dict], problems: list) -> None:
+    path = root / INDEX
+    if not path.is_file():
+        problems.append(f"{path}: missing (python -m dataset_tools.index {root})")
+        return
+    try:
+        idx = read_json(path, DatasetError)
+        splits = idx["splits"]
+        listed = {(str(x["dir"]), s) for s, xs in splits.items() for x in xs}
+    except DatasetError as exc:
+        problems.append(str(exc))
+        return
+    except (KeyError, TypeError, AttributeError):
+        problems.append(f"{path}: field 'splits' must map split names to lists of frames with 'dir'")
+        return
+    want = {(str(e["dir"]), str(e["split"])) for e in entries}
+    for d, s in sorted(want - listed):
+        problems.append(f"{path}: frame {d} (split {s}) is in the manifest but not in the index")
+    for d, s in sorted(listed - want):
+        problems.append(f"{path}: frame {d} (split {s}) is in the index but not in the manifest")
+
+
+def _check_exr_camera(path: Path, shape, problems: list) -> None:
+    try:
+        ch = read_exr_checked(path)
+        dist = _find(ch, path, "distance", "depth")
+        sem = _find(ch, path, "semantic", "indexma")
+        ins = _find(ch, path, "instance", "indexob")
+    except DatasetError as exc:
+        problems.append(str(exc))
+        return
+    for name, a in (("distance", dist), ("semantic", sem), ("instance", ins)):
+        if a.shape != shape:
+            problems.append(f"{path}: channel '{name}' is {a.shape[1]}x{a.shape[0]}, the rig camera is {shape[1]}x{shape[0]}")
+            return
+    if not np.all(np.isfinite(dist)):
+        problems.append(f"{path}: channel 'distance' has NaN or inf")
+    elif dist.min() < 0:
+        problems.append(f"{path}: channel 'distance' is negative ({dist.min():.3g})")
+    if sem.max() >= NUM_FINE_CLASSES:
+        problems.append(f"{path}: channel 'semantic' has class {int(sem.max())}, beyond the {NUM_FINE_CLASSES} fine classes")
+    for k, a in ch.items():
+        if a.dtype.kind == "f" and k not in ("distance",) and not np.all(np.isfinite(a)):
+            problems.append(f"{path}: channel '{k}' has NaN or inf")
+
+
+def check_frame(frame_dir: Path, problems: list, labels: bool = True, n_classes: int = 5) -> None:
+    files = FrameFiles(frame_dir)
+    meta_path = files.meta
+    if not meta_path.is_file():
+        problems.append(f"{meta_path}: missing")
+        return
+    try:
+        meta = read_meta(frame_dir)
+    except DatasetError as exc:
+        problems.append(str(exc))
+        return
+    rig = meta_rig(meta)
+    if rig is None:
+        problems.append(f"{meta_path}: missing field 'rig'")
+        return
+    try:
+        rig = frame_rig(meta, frame_dir)
+        grid = frame_grid(meta, frame_dir)
+    except DatasetError as exc:
+        problems.append(str(exc))
+        return
+    for rc in rig:
+        shape = (rc.camera.height, rc.camera.width)
+        png = files.camera_png(rc.name)
+        try:
+            img = read_png(png, np.uint8, 3)
+            if img.shape[:2] != shape:
+                problems.append(f"{png}: {img.shape[1]}x{img.shape[0]} pixels, the rig camera is {shape[1]}x{shape[0]}")
+        except DatasetError as exc:
+            problems.append(str(exc))
+        _check_exr_camera(files.camera_exr(rc.name), shape, problems)
+    try:
+        td = read_topdown(frame_dir)
+        if td["semantic"].shape != grid.shape:
+            problems.append(f"{files.topdown}: {td['semantic'].shape} pixels, the label grid is {grid.shape}")
+        for k in ("height", "height_all"):
+            if k in td and not np.all(np.isfinite(td[k])):
+                problems.append(f"{files.topdown}: channel 'height' has NaN or inf")
+    except DatasetError as exc:
+        problems.append(str(exc))
+    if not labels:
+        return
+    for path, dtype in ((files.semantic, np.uint8), (files.instance, np.uint16), (files.visibility, np.uint16)):
+        try:
+            a = read_png(path, dtype, 1)
+        except DatasetError as exc:
+            problems.append(str(exc))
+            continue
+        if a.shape != grid.shape:
+            problems.append(f"{path}: {a.shape} pixels, the label grid is {grid.shape}")
+        elif path == files.semantic and a.max() >= n_classes:
+            problems.append(f"{path}: class {int(a.max())}, beyond the {n_classes} training classes")
+
+
+def validate(root, labels: bool = True, progress: bool = True) -> list[str]:
+    from tqdm import tqdm
+
+    root = Path(root)
+    problems: list[str] = []
+    if not root.is_dir():
+        return [f"{root}: not a directory"]
+    entries = check_manifest(root, problems)
+    n_classes = 5
+    if labels:
+        check_index(root, entries, problems)
+        try:
+            n_classes = len(read_json(root / INDEX, DatasetError).get("class_names", [0] * 5))
+        except (DatasetError, AttributeError, TypeError):
+            pass
+    for e in tqdm(entries, desc="validate", unit="frame", disable=not progress):
+        check_frame(root / e["dir"], problems, labels, n_classes)
+    return problems
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m dataset_tools.validate", description="Check every file of a data set; exit 1 on any problem.")
+    ap.add_argument("dataset")
+    ap.add_argument("--no-labels", action="store_true", help="renders only (before fusion)")
+    args = ap.parse_args(argv)
+    problems = validate(args.dataset, labels=not args.no_labels)
+    for p in problems:
+        print(p)
+    if problems:
+        print(f"{len(problems)} problem(s)", file=sys.stderr)
+        return 1
+    print(f"ok: {args.dataset}")
+    return 0
