@@ -4,8 +4,12 @@ manifest.
     <dataset>/
       manifest.jsonl            one JSON line per finished frame (written last, by the driver only)
       index.json                splits -> frames, class names, grid, rig (dataset_tools.index / fuse)
+      recipes/<scene>.yaml      the recipe each scene was rendered from (sampled scenes)
+      audit.json                line-of-sight audit of the labels (dataset_tools.audit)
+      report/                   the static HTML QA report (dataset_tools.report)
       <scene>/<frame:06d>/      one frame (frame_dir_name)
         cam_<name>.exr/.png     fisheye passes and 8-bit image per camera
+        cam_<name>_ego.png      the camera's self-occlusion mask (255 where the ego car's body is)
         topdown.exr             top-down passes ('all.*' first hit from above, 'ground.*' occluders hidden)
         meta.json               calibration, grid, weather, ego pose, actors
         labels/semantic.png, instance.png, visibility.png   (dataset_tools.fuse)
@@ -25,6 +29,9 @@ from common.errors import InputError
 
 MANIFEST = "manifest.jsonl"
 INDEX = "index.json"
+RECIPES_DIR = "recipes"
+AUDIT = "audit.json"
+REPORT_DIR = "report"
 META = "meta.json"
 TOPDOWN_EXR = "topdown.exr"
 LABEL_DIR = "labels"
@@ -64,9 +71,12 @@ class FrameFiles:
     def camera_png(self, name: str) -> Path:
         return self.dir / f"cam_{name}.png"
 
+    def camera_ego_mask(self, name: str) -> Path:
+        return self.dir / f"cam_{name}_ego.png"
+
     def camera_names(self) -> list[str]:
         """Camera names, from the frame's cam_<name>.png files (sorted)."""
-        return sorted(p.stem[4:] for p in self.dir.glob("cam_*.png"))
+        return sorted(p.stem[4:] for p in self.dir.glob("cam_*.png") if not p.stem.endswith("_ego"))
 
     def label_paths(self) -> list[Path]:
         return [self.labels / n for n in LABEL_PNGS]
