@@ -1,4 +1,4 @@
-"""The BEV grid: ego-frame metres <-> cells, in the orientation of DESIGN.md.
+"""The BEV grid: ego-frame metres <-> cells, in the orientation of docs/geometry.md.
 
 In a BEV image up is +x (forward) and left is +y (left):
 row i has x = x_max - (i + 0.5) res, column j has y = y_max - (j + 0.5) res.

@@ -1,6 +1,6 @@
 """Camera models: pixel <-> unit ray, batched, numpy or torch.
 
-Frames and formulas are those of DESIGN.md: camera frame OpenCV (x right, y down, z forward),
+Frames and formulas are those of docs/geometry.md: camera frame OpenCV (x right, y down, z forward),
 pixels (u right, v down) with the centre of the top-left pixel at (0, 0).
 
 Every camera has

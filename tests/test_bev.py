@@ -1,4 +1,4 @@
-"""BEV grid orientation: up is +x, left is +y, cell centres as DESIGN.md says."""
+"""BEV grid orientation: up is +x, left is +y, cell centres as docs/geometry.md says."""
 
 import numpy as np
 import pytest

@@ -1,6 +1,7 @@
 """Camera models: round trips, identities, independent references, gradients, resize and crop."""
 
 import math
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -150,7 +151,7 @@ def woodscape_reference(points, k, cx_offset, cy_offset, width, height, aspect_r
 def test_radial_poly_matches_woodscape_formula():
     from geometry.rig import load_rig
 
-    rig = load_rig("../shared/data/woodscape/front.json")
+    rig = load_rig(Path(__file__).parent / "data" / "woodscape" / "front.json")
     cam = rig["FV"].camera
     assert (cam.width, cam.height) == (1280, 966)
     p = sphere_points(20_000, seed=6) * 4

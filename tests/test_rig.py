@@ -1,12 +1,14 @@
 """Rigs: conventions of the mount angles, quaternions, files and WoodScape import."""
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
 from geometry.bev import BevGrid
 from geometry.rig import RigError, load_rig, matrix_to_quat, mount_rotation, quat_to_matrix, rig_from_dict
 
-WOODSCAPE = "../shared/data/woodscape/front.json"
+WOODSCAPE = str(Path(__file__).parent / "data" / "woodscape" / "front.json")
 
 
 def test_mount_angles_point_the_optical_axis():
