@@ -12,8 +12,7 @@ from pathlib import Path
 from common.files import write_json_atomic
 
 from ..labels.classes import TRAIN_CLASSES
-from .layout import INDEX, MANIFEST, SPLITS, DatasetError, Manifest
-from .reader import read_meta
+from .layout import INDEX, MANIFEST, SPLITS, DatasetError, Manifest, read_meta
 
 DEFAULT_GRID = {"x_min": -25.0, "x_max": 25.0, "y_min": -25.0, "y_max": 25.0, "res": 0.125}
 

@@ -26,6 +26,7 @@ import threading
 from pathlib import Path
 
 from common.errors import InputError
+from common.files import read_json
 
 MANIFEST = "manifest.jsonl"
 INDEX = "index.json"
@@ -87,6 +88,17 @@ class FrameFiles:
     def rendered_files(self, cameras) -> list[str]:
         """The files (relative to the frame) a finished render has, in manifest order."""
         return [f"cam_{n}.{ext}" for n in cameras for ext in ("exr", "png")] + [TOPDOWN_EXR, META]
+
+
+def read_meta(frame_dir) -> dict:
+    """A frame's meta.json ({} when the frame has none); anything but a JSON object is refused."""
+    path = FrameFiles(frame_dir).meta
+    if not path.is_file():
+        return {}
+    meta = read_json(path, DatasetError)
+    if not isinstance(meta, dict):
+        raise DatasetError(f"{path}: must be a JSON object")
+    return meta
 
 
 def _complete_lines(path: Path) -> list[str]:

@@ -19,7 +19,8 @@ import numpy as np
 
 from common.files import read_json
 
-from .layout import INDEX, MANIFEST, VISIBILITY_SCALE, DatasetError, FrameFiles, Manifest
+from .index import build_index
+from .layout import INDEX, MANIFEST, VISIBILITY_SCALE, DatasetError, FrameFiles, Manifest, read_meta
 
 @dataclass(frozen=True)
 class FrameRef:
@@ -44,8 +45,6 @@ class DatasetIndex:
         if path.is_file():
             self.data = read_json(path, DatasetError)
         elif Manifest(self.root).exists():
-            from .index import build_index
-
             self.data = build_index(self.root)
         else:
             raise DatasetError(f"{path}: missing (and no {MANIFEST} to build it from)")
@@ -146,17 +145,6 @@ def read_frame(ref, cameras=None) -> dict:
     out = {"images": images, **read_labels(files.dir)}
     out["meta"] = read_meta(files.dir)
     return out
-
-
-def read_meta(frame_dir) -> dict:
-    """A frame's meta.json ({} when the frame has none); anything but a JSON object is refused."""
-    path = FrameFiles(frame_dir).meta
-    if not path.is_file():
-        return {}
-    meta = read_json(path, DatasetError)
-    if not isinstance(meta, dict):
-        raise DatasetError(f"{path}: must be a JSON object")
-    return meta
 
 
 def downsample_labels(semantic: np.ndarray, visibility: np.ndarray, factor: int, priority=(2, 1), num_classes: int = 5):
