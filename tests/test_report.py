@@ -122,7 +122,8 @@ def _all_images_loaded(driver):
 def _screenshot(driver, path):
     """The whole page (the window grown to the page's height, at most 4000 px)."""
     driver.execute_script("window.scrollTo(0, 0)")
-    h = driver.execute_script("return document.documentElement.scrollHeight")
+    # the window is the viewport plus the browser's own frame
+    h = driver.execute_script("return document.documentElement.scrollHeight + window.outerHeight - window.innerHeight")
     driver.set_window_size(1400, min(max(h, 600), 4000))
     ok = driver.save_screenshot(str(path))
     driver.set_window_size(1400, 1000)

@@ -419,12 +419,13 @@ def scene_page(scene: str, infos: list[dict], class_names: list[str], audit: dic
         for i, f in enumerate(infos))
     passes = "".join(f"<button class=\"pass\" data-pass=\"{p}\">{p}</button>" for p in PASSES)
     body = (f"<p><a href=\"../index.html\">overview</a></p><h1>{esc(scene)}</h1>"
-            + ("<section><h2>Contact sheet</h2><img class=\"sheet\" src=\"" + esc(scene) + "_sheet.webp\" alt=\"contact sheet\"></section>" if has_sheet else "")
             + f"<section><h2>Frames</h2><div id=\"strip\">{strip}</div></section>"
             + "<section id=\"frame\"><h2 id=\"frame-title\"></h2>"
             + f"<div id=\"passes\">{passes}</div><div id=\"cameras\"></div>"
             + "<div id=\"bev-row\"><div><div id=\"bev\"></div><div id=\"legend\"></div></div><div id=\"side\"><h3>cell</h3><pre id=\"cell\">hover or click a BEV cell</pre>"
-            + "<h3>frame</h3><pre id=\"meta\"></pre></div></div></section>")
+            + "<h3>frame</h3><pre id=\"meta\"></pre></div></div></section>"
+            + ("<section><h2>Contact sheet (first frame)</h2><img class=\"sheet\" src=\"" + esc(scene)
+               + "_sheet.webp\" alt=\"contact sheet\"></section>" if has_sheet else ""))
     script = f"<script>window.REPORT = {{cells: {{}}, scene: {json.dumps(data, separators=(',', ':'))}}};</script>\n"
     return page(scene, body, 1, script)
 
