@@ -10,15 +10,27 @@ import sys
 import time
 from pathlib import Path
 
+import cv2
+import numpy as np
 import pytest
 
-from dataset_tools.format.layout import AUDIT, REPORT_DIR
+from dataset_tools.format.layout import AUDIT, REPORT_DIR, FrameFiles
+from dataset_tools.format.reader import read_png
 from dataset_tools.qa.report import build_report, report_size
 
 ROOT = Path(__file__).resolve().parents[1]
 CHROME_FLAGS = ("--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
                 "--disable-background-networking", "--disable-component-update", "--disable-sync",
                 "--window-size=1400,1000")
+
+
+def write_ego_mask(frame_dir: Path, camera: str) -> None:
+    """A self-occlusion mask (255 on the ego body: here the image's bottom fifth)."""
+    files = FrameFiles(frame_dir)
+    h, w = read_png(files.camera_png(camera)).shape[:2]
+    mask = np.zeros((h, w), np.uint8)
+    mask[-max(1, h // 5):] = 255
+    assert cv2.imwrite(str(files.camera_ego_mask(camera)), mask)
 
 
 @pytest.fixture(scope="module")
@@ -30,6 +42,8 @@ def report(tiny_dataset, tmp_path_factory):
     audit = {"frames": {n: {"visible_no_los": 0.2 if i == 0 else 0.01, "los_invisible": 0.02} for i, n in enumerate(frames)},
              "overall": {"visible_no_los": 0.03, "los_invisible": 0.02}, "threshold": 0.1}
     (data / AUDIT).write_text(json.dumps(audit))
+    for cam in ("front", "left", "rear", "right"):  # frames[1] has ego masks (the others none)
+        write_ego_mask(data / frames[1], cam)
     r = subprocess.run([sys.executable, "-m", "dataset_tools.report", str(data), "--no-progress"], cwd=ROOT,
                        capture_output=True, text=True, timeout=600)
     assert r.returncode == 0, r.stderr[-2000:]
@@ -51,6 +65,7 @@ def test_report_pages_and_files(report):
         assert set(info["cameras"]) == {"front", "left", "rear", "right"}
         for cam, passes in info["images"].items():
             assert {"rgb", "semantic", "instance", "distance"} <= set(passes)
+            assert ("ego" in passes) == (name == frames[1])
         assert all((out / "frames" / name / f).stat().st_size > 0 for f in info["bev"].values())
         cells = (out / "frames" / name / "cells.js").read_text()
         assert cells.startswith(f'REPORT.cells["{name}"]') and len(cells) < 50_000
@@ -60,7 +75,9 @@ def test_report_pages_and_files(report):
 
 
 def test_report_incremental(report, tmp_path):
-    data, _, frames = report
+    frames = report[2]
+    data = tmp_path / "ds"  # its own copy: this test adds an input
+    shutil.copytree(report[0], data, ignore=shutil.ignore_patterns(REPORT_DIR))
     out = tmp_path / "r"
     build_report(data, out, frames_per_scene=1, progress=False)
     infos = sorted(out.glob("frames/*/*/info.json"))
@@ -69,12 +86,15 @@ def test_report_incremental(report, tmp_path):
     time.sleep(0.05)
     build_report(data, out, frames_per_scene=1, progress=False)
     assert {p: p.stat().st_mtime_ns for p in infos} == before  # nothing redone
+    # a new input (an ego mask) makes that frame, and only it, be redone
     changed = infos[0]
-    meta = data / changed.parent.relative_to(out / "frames") / "meta.json"
-    os.utime(meta, (time.time() + 5, time.time() + 5))
+    frame_dir = data / changed.parent.relative_to(out / "frames")
+    write_ego_mask(frame_dir, "rear")
+    os.utime(FrameFiles(frame_dir).camera_ego_mask("rear"), (time.time() + 5, time.time() + 5))
     build_report(data, out, frames_per_scene=1, progress=False)
     after = {p: p.stat().st_mtime_ns for p in infos}
     assert after[changed] != before[changed] and all(after[p] == before[p] for p in infos[1:])
+    assert json.loads(changed.read_text())["images"]["rear"]["ego"] == "cam_rear_ego.webp"
 
 
 def test_report_no_audit_and_bad_input(tiny_dataset, tmp_path):
@@ -163,8 +183,9 @@ def test_report_in_chromium(report, tmp_path):
         cam = driver.find_element("css selector", "#cameras img")
         assert broken == [] and cam.get_attribute("src") != src and "_semantic." in cam.get_attribute("src")
         assert cam.screenshot_as_png != pixels  # the picture itself changed, not only its name
-        # the ego pass has no image in the tiny set (no cam_<name>_ego.png): its button is off
-        assert not driver.find_element("css selector", "#passes button[data-pass=ego]").is_enabled()
+        driver.find_element("css selector", "#passes button[data-pass=ego]").click()
+        assert _all_images_loaded(driver)[1] == []
+        assert driver.find_element("css selector", "#cameras img").get_attribute("src").endswith("_ego.webp")
         # hovering a BEV cell reads it out of cells.js
         from selenium.webdriver import ActionChains
 
@@ -172,9 +193,11 @@ def test_report_in_chromium(report, tmp_path):
         ActionChains(driver).move_to_element_with_offset(bev, 5, 5).click().perform()
         text = driver.find_element("id", "cell").text
         assert "class:" in text and "p(o):" in text and "seen by:" in text
-        # the frame strip switches frames
+        # the frame strip switches frames; frames[0] has no ego masks: its ego button is off
         driver.find_element("css selector", "button.thumb[data-frame='0']").click()
         assert frames[0].split("/")[1] in driver.find_element("id", "frame-title").text
+        assert not driver.find_element("css selector", "#passes button[data-pass=ego]").is_enabled()
+        assert _all_images_loaded(driver)[1] == []
         driver.find_element("css selector", "button.thumb[data-frame='1']").click()
         assert _screenshot(driver, shots / "report_scene.png")
         assert _severe(driver) == []

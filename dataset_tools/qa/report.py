@@ -22,7 +22,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from common.files import write_bytes_atomic, write_json_atomic, write_text_atomic
+from common.files import clean_stale_temps, write_bytes_atomic, write_figure_atomic, write_json_atomic, write_text_atomic
 
 from ..format.layout import AUDIT, REPORT_DIR, DatasetError, FrameFiles
 from ..format.reader import DatasetIndex, downsample_labels, read_labels, read_png
@@ -221,8 +221,6 @@ def _pyplot():
 def rig_figure(rig, path: Path, box=DEFAULT_EGO_BOX, reach_m: float = 3.0) -> None:
     """Top view of the car: each camera's position and its horizontal field of view, the fan of
     the rays of the image's middle row (camera model unproject, rotated into the ego frame)."""
-    from common.files import write_figure_atomic
-
     plt = _pyplot()
     fig, ax = plt.subplots(figsize=(5, 5))
     x0, x1, y0, y1 = box
@@ -256,8 +254,6 @@ def rig_figure(rig, path: Path, box=DEFAULT_EGO_BOX, reach_m: float = 3.0) -> No
 
 def scene_scores_figure(frames: list[str], series: dict[str, list], threshold: float | None, title: str,
                         ylabel: str, path: Path) -> None:
-    from common.files import write_figure_atomic
-
     plt = _pyplot()
     fig, ax = plt.subplots(figsize=(6, 2.6))
     x = np.arange(len(frames))
@@ -274,8 +270,6 @@ def scene_scores_figure(frames: list[str], series: dict[str, list], threshold: f
 
 
 def timing_figure(infos: list[dict], path: Path) -> None:
-    from common.files import write_figure_atomic
-
     plt = _pyplot()
     fig, ax = plt.subplots(figsize=(7, 2.8))
     keys = ("fisheye_s", "topdown_s", "write_s")
@@ -305,10 +299,23 @@ def read_audit(root: Path) -> dict | None:
         raise DatasetError(f"{path}: not readable JSON ({exc})") from None
     if not isinstance(a, dict) or not isinstance(a.get("frames", {}), dict):
         raise DatasetError(f"{path}: field 'frames' must be a mapping of '<scene>/<frame>' to figures")
+    for name, fig in a.get("frames", {}).items():
+        if not isinstance(fig, dict):
+            raise DatasetError(f"{path}: frames.{name}: must be a mapping of figures")
+    th = a.get("threshold")
+    if th is not None and (isinstance(th, bool) or not isinstance(th, (int, float))):
+        raise DatasetError(f"{path}: field 'threshold' must be a number")
+    if not isinstance(a.get("overall") or {}, dict):
+        raise DatasetError(f"{path}: field 'overall' must be a mapping of figures")
+    a.setdefault("frames", {})
     return a
 
 
 AUDIT_FIGURES = ("visible_no_los", "los_invisible")
+
+
+def _number(v):
+    return v if isinstance(v, (int, float)) and not isinstance(v, bool) else None
 
 
 def audit_fails(fig: dict, threshold) -> bool:
@@ -365,13 +372,13 @@ def overview_page(title: str, idx: DatasetIndex, scenes: dict, st: dict, audit: 
     # consistency
     crow, figs = [], []
     for scene, infos in scenes.items():
-        low = [i["name"] for i in infos if (i["consistency"].get("street") or 1.0) < threshold]
+        low = [i["name"] for i in infos if below(i["consistency"].get("street"), threshold)]
         overall = [i["consistency"].get("overall") for i in infos if i["consistency"].get("overall") is not None]
         crow.append([f"<a href=\"scenes/{esc(scene)}.html\">{esc(scene)}</a>", len(infos),
                      pct(float(np.mean(overall)) if overall else None),
                      " ".join(frame_link(n) for n in low) or "none"])
         figs.append(f"<img class=\"fig\" src=\"overview/consistency_{esc(scene)}.png\" alt=\"consistency {esc(scene)}\">")
-    parts.append(f"<section><h2>Consistency (camera pixels vs fused labels)</h2>"
+    parts.append("<section><h2>Consistency (camera pixels vs fused labels)</h2>"
                  + table(["scene", "frames", "overall", f"frames with street below {threshold:g}"], crow)
                  + f"<div class=\"figs\">{''.join(figs)}</div></section>")
     # audit
@@ -382,7 +389,7 @@ def overview_page(title: str, idx: DatasetIndex, scenes: dict, st: dict, audit: 
         th = audit.get("threshold")
         arow, figs = [], []
         for scene in scenes:
-            fr = {k: v for k, v in audit["frames"].items() if k.split("/")[0] == scene and isinstance(v, dict)}
+            fr = {k: v for k, v in audit["frames"].items() if k.split("/")[0] == scene}
             bad = [k for k, v in sorted(fr.items()) if audit_fails(v, th)]
             arow.append([f"<a href=\"scenes/{esc(scene)}.html\">{esc(scene)}</a>", len(fr),
                          " ".join(frame_link(n) for n in bad) or "none"])
@@ -396,6 +403,10 @@ def overview_page(title: str, idx: DatasetIndex, scenes: dict, st: dict, audit: 
     parts.append("<section><h2>Render time</h2><img class=\"fig\" src=\"overview/render_time.png\" alt=\"render time\">"
                  + table(["", "mean s/frame"], [[esc(k), f"{np.mean(v):.2f}"] for k, v in _timings(scenes).items()]) + "</section>")
     return page(title, "\n".join(parts), 0)
+
+
+def below(score, threshold) -> bool:
+    return score is not None and score < threshold
 
 
 def _timings(scenes: dict) -> dict:
@@ -453,6 +464,7 @@ def build_report(root, out=None, frames_per_scene: int | None = None, threshold:
             by.setdefault(r.scene, []).append(r)
         # evenly spread over the scene, first and last included
         refs = [rs[i] for rs in by.values() for i in sorted(set(np.linspace(0, len(rs) - 1, min(frames_per_scene, len(rs))).round().astype(int)))]
+    clean_stale_temps(out)  # temp files of an interrupted run
     (out / "overview").mkdir(parents=True, exist_ok=True)
     (out / "scenes").mkdir(exist_ok=True)
     for asset in ("report.css", "report.js"):
@@ -482,7 +494,7 @@ def build_report(root, out=None, frames_per_scene: int | None = None, threshold:
                             out / "overview" / f"consistency_{scene}.png")
         fr = (audit or {}).get("frames", {})
         if audit is not None and any(n in fr for n in names):
-            series = {k: [(fr.get(n) or {}).get(k) for n in names] for k in AUDIT_FIGURES}
+            series = {k: [_number(fr.get(n, {}).get(k)) for n in names] for k in AUDIT_FIGURES}
             scene_scores_figure(names, series, audit.get("threshold"), f"{scene}: line-of-sight audit", "share",
                                 out / "overview" / f"audit_{scene}.png")
         first = first_ref[names[0]]
