@@ -7,7 +7,10 @@ PYTHON := $(VENV)/bin/python
 APT_LIBS := libx11-6 libxrender1 libxfixes3 libxi6 libxkbcommon0 libsm6 libice6 libgl1 libegl1 \
             libxxf86vm1 libxext6 libxcursor1 libxinerama1 libxrandr2 libglu1-mesa
 
-.PHONY: setup test bench demo dataset train eval clean
+# Headless browser for the report's test (tests/test_report.py).
+BROWSER_PKGS := chromium chromium-driver
+
+.PHONY: setup browser test bench demo dataset train eval clean
 
 setup: $(VENV)/.done
 
@@ -22,6 +25,13 @@ $(VENV)/.done: requirements.txt Makefile
 	$(PYTHON) -c "import bpy, torch, OpenEXR, kornia, cv2; print('setup ok: bpy', bpy.app.version_string, 'torch', torch.__version__)"
 	@touch $@
 
+browser:
+	@missing=""; for p in $(BROWSER_PKGS); do dpkg -s $$p >/dev/null 2>&1 || missing="$$missing $$p"; done; \
+	if [ -n "$$missing" ]; then \
+	  echo "installing the headless browser for the report test:$$missing"; \
+	  apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $$missing >/dev/null; \
+	fi
+
 # Options: make dataset PRESET=small DATA=data/small WORKERS=2; make train CONFIG=...; make eval SPLIT=hard
 PRESET ?= small
 DATA ?= data/$(PRESET)
@@ -30,7 +40,7 @@ RUN ?= runs/$(basename $(notdir $(CONFIG)))
 SPLIT ?= all
 WORKERS ?=
 
-test: setup
+test: setup browser
 	$(PYTHON) -m pytest -q tests
 
 bench: setup
@@ -39,6 +49,7 @@ bench: setup
 dataset: setup
 	$(PYTHON) -m dataset_tools.generate --config configs/dataset/$(PRESET).yaml --out $(DATA) $(if $(WORKERS),--workers $(WORKERS))
 	$(PYTHON) -m dataset_tools.fuse $(DATA) --config configs/dataset/$(PRESET).yaml $(if $(WORKERS),--workers $(WORKERS))
+	$(PYTHON) -m dataset_tools.report $(DATA)
 
 train: setup
 	$(PYTHON) train.py --config $(CONFIG) --out $(RUN)

@@ -3,7 +3,7 @@
 - `generation/`: dataset configs, scene recipes and the render driver (`python -m dataset_tools.generate`)
 - `format/`: the on-disk layout of a data set (`layout`), EXR/PNG I/O, the index and the reader
 - `labels/`: fine classes, visibility p(o) and label fusion (`python -m dataset_tools.fuse`)
-- `qa/`: validate, inspect, consistency, stats and contact sheets
+- `qa/`: validate, inspect, consistency, stats, contact sheets and the HTML report
 
 The modules at this level are the commands (`python -m dataset_tools.<command>`).
 

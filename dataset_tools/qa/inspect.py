@@ -115,12 +115,18 @@ def pass_pictures(channels: dict) -> dict[str, np.ndarray]:
     return out
 
 
-def footprint_map(counts: dict, res: float, cfg: FusionConfig, tau: float, names: list[str]):
+def camera_seen(counts: dict, res: float, cfg: FusionConfig, tau: float) -> dict[str, np.ndarray]:
+    """{camera: (H, W) bool}: the cells each camera alone sees with p(o) >= 0.5."""
+    return {name: visibility_from_counts(c, res, cfg.kernel_radius_m, tau) >= 0.5 for name, c in counts.items()}
+
+
+def footprint_map(counts: dict, res: float, cfg: FusionConfig, tau: float, names: list[str], seen_by: dict | None = None):
     """(H, W, 3) picture: each cell the mean colour of the cameras that see it with p >= 0.5."""
+    seen_by = seen_by or camera_seen({n: counts[n] for n in names}, res, cfg, tau)
     acc = None
     n = None
     for i, name in enumerate(names):
-        seen = visibility_from_counts(counts[name], res, cfg.kernel_radius_m, tau) >= 0.5
+        seen = seen_by[name]
         if acc is None:
             acc = np.zeros(seen.shape + (3,), np.float32)
             n = np.zeros(seen.shape, np.float32)
@@ -130,6 +136,45 @@ def footprint_map(counts: dict, res: float, cfg: FusionConfig, tau: float, names
     overlap = n >= 2
     pic[overlap] = (pic[overlap] * 0.8).astype(np.uint8)  # cells seen by several cameras a bit darker
     return pic, n
+
+
+def labels_over_topdown(topdown: dict, semantic_pic: np.ndarray, visibility: np.ndarray) -> np.ndarray:
+    """Labels over the top-down view (first hit from above, shaded by height), occluded cells darkened."""
+    h = topdown.get("height_all", np.zeros(visibility.shape, np.float32))
+    base = colorize(topdown["semantic_all"]).astype(np.float32) * (0.6 + 0.4 * np.clip(h / 8.0, 0, 1))[..., None]
+    over = 0.5 * base + 0.5 * semantic_pic.astype(np.float32)
+    over *= (0.35 + 0.65 * visibility)[..., None]
+    return np.clip(over, 0, 255).astype(np.uint8)
+
+
+def frame_pictures(frame_dir: Path, cfg: FusionConfig, labels: dict | None = None) -> tuple[dict, dict]:
+    """The BEV pictures of a frame at grid size: top-down views with and without occluders, the
+    labels, their visibility, labels over the top-down view and the camera footprints (no legend).
+    `labels` (semantic, instance, visibility, e.g. the fused PNGs on disk) replaces the freshly
+    fused ones in the pictures; the per-camera counts always come from fusing the passes.
+    Also returns the data behind them: meta, rig, cameras, topdown, grid, labels (as shown),
+    counts, names, tau, seen ({camera: cells it sees}) and n_seen (cameras per cell)."""
+    meta, rig, cameras, topdown = load_frame_passes(frame_dir)
+    grid = frame_grid(meta, frame_dir)
+    lab = fuse_passes(rig, cameras, topdown, grid, cfg, ego_box(meta, cfg))
+    shown = {**lab, **(labels or {})}
+    sem_pic = colorize_train(shown["semantic"])
+    names = list(lab["counts"])
+    tau = effective_tau(cfg, [cameras[n]["distance"].shape for n in names])
+    seen = camera_seen(lab["counts"], grid.res, cfg, tau)
+    foot, n_seen = footprint_map(lab["counts"], grid.res, cfg, tau, names, seen)
+    pics = {
+        "topdown_all": colorize(topdown["semantic_all"]),
+        "topdown_ground": colorize(topdown["semantic"]),
+        "labels_semantic": sem_pic,
+        "labels_instance": colour_ids(shown["instance"]),
+        "labels_visibility": colour_map(shown["visibility"], 0.0, 1.0),
+        "labels_over_topdown": labels_over_topdown(topdown, sem_pic, shown["visibility"]),
+        "camera_footprints": foot,
+    }
+    data = {"meta": meta, "rig": rig, "cameras": cameras, "topdown": topdown, "grid": grid, "labels": shown,
+            "counts": lab["counts"], "names": names, "tau": tau, "seen": seen, "n_seen": n_seen}
+    return pics, data
 
 
 def legend(pic: np.ndarray, names: list[str]) -> np.ndarray:
@@ -152,23 +197,11 @@ def inspect_frame(frame_dir: Path, out: Path, cfg: FusionConfig | None = None) -
     report = []
     for exr in sorted(frame_dir.glob("*.exr")):
         report.append(inspect_exr(exr, out, f"{exr.stem}_"))
-    meta, rig, cameras, topdown = load_frame_passes(frame_dir)
-    grid = frame_grid(meta, frame_dir)
-    lab = fuse_passes(rig, cameras, topdown, grid, cfg, ego_box(meta, cfg))
-    sem_pic = colorize_train(lab["semantic"])
-    write_png_atomic(out / "labels_semantic.png", enlarge(sem_pic))
-    write_png_atomic(out / "labels_instance.png", enlarge(colour_ids(lab["instance"])))
-    write_png_atomic(out / "labels_visibility.png", enlarge(colour_map(lab["visibility"], 0.0, 1.0)))
-    # labels over the top-down view (first hit from above, shaded by height), occluded cells darkened
-    h = topdown.get("height_all", np.zeros(grid.shape, np.float32))
-    base = colorize(topdown["semantic_all"]).astype(np.float32) * (0.6 + 0.4 * np.clip(h / 8.0, 0, 1))[..., None]
-    over = 0.5 * base + 0.5 * sem_pic.astype(np.float32)
-    over *= (0.35 + 0.65 * lab["visibility"])[..., None]
-    write_png_atomic(out / "labels_over_topdown.png", enlarge(np.clip(over, 0, 255).astype(np.uint8)))
-    names = list(lab["counts"])
-    tau = effective_tau(cfg, [cameras[n]["distance"].shape for n in names])
-    pic, n = footprint_map(lab["counts"], grid.res, cfg, tau, names)
-    write_png_atomic(out / "camera_footprints.png", legend(pic, names))
+    pics, d = frame_pictures(frame_dir, cfg)
+    for name in ("labels_semantic", "labels_instance", "labels_visibility", "labels_over_topdown"):
+        write_png_atomic(out / f"{name}.png", enlarge(pics[name]))
+    write_png_atomic(out / "camera_footprints.png", legend(pics["camera_footprints"], d["names"]))
+    lab, grid, n = d["labels"], d["grid"], d["n_seen"]
     vis = lab["visibility"]
     report.append(f"labels {grid.rows}x{grid.cols} at {grid.res} m: " + ", ".join(
         f"{c} {np.mean(lab['semantic'] == i):.1%}" for i, c in enumerate(cfg.class_names)))
