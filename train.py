@@ -10,7 +10,7 @@ Read it top to bottom: prepare -> resume -> (train_one_epoch, validate, save_che
 
 from __future__ import annotations
 
-import argparse
+import contextlib
 import math
 import os
 import signal
@@ -24,9 +24,10 @@ import torch
 import torch.distributed as dist
 from torch.utils.data import DataLoader
 
-from common.cli import EXIT_INTERRUPTED, run_cli
+from common.cli import ArgumentParser, EXIT_INTERRUPTED, run_cli
 from common.errors import ConfigError
-from common.files import clean_stale_temps
+from common.files import clean_stale_temps, output_dir
+from common.lock import hold_lock
 from dataset_tools import DatasetIndex, colorize_train
 from model import CheckpointError, build_model, save_checkpoint
 from model.checkpoint import model_part
@@ -328,7 +329,7 @@ def train(cfg: dict, out_dir: Path, quiet: bool = False) -> dict:
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(prog="train.py", description="Train the LSS-fisheye BEV model.")
+    p = ArgumentParser(prog="train.py", description="Train the LSS-fisheye BEV model.")
     p.add_argument("--config", default="configs/train/cpu_default.yaml")
     p.add_argument("--out", help="run directory (default runs/<config name>)")
     p.add_argument("--set", action="append", default=[], metavar="SECTION.FIELD=VALUE", help="override a config field")
@@ -336,11 +337,12 @@ def main(argv=None) -> int:
     a = p.parse_args(argv)
     cfg = load_config(a.config, parse_overrides(a.set))
     out = Path(a.out or Path("runs") / Path(a.config).stem)
-    if out.exists() and not out.is_dir():
-        raise ConfigError(f"--out: {out} is a file, not a run folder")
-    out.mkdir(parents=True, exist_ok=True)
+    output_dir(out)
+    # one training run per run folder (rank 0 holds the lock for its DDP peers)
+    lock = hold_lock(out) if int(os.environ.get("RANK", "0")) == 0 else contextlib.nullcontext()
     try:
-        res = train(cfg, out, a.quiet)
+        with lock:
+            res = train(cfg, out, a.quiet)
     except KeyboardInterrupt:
         print(f"\ninterrupted; {out / 'latest.pt'} holds the last whole step: run the same command to resume", file=sys.stderr)
         return EXIT_INTERRUPTED

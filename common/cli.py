@@ -11,6 +11,7 @@ file system, permission, no CUDA) prints one line naming the path and exits 1; C
 
 from __future__ import annotations
 
+import argparse
 import os
 import sys
 
@@ -19,6 +20,13 @@ from .errors import InputError
 EXIT_BAD_INPUT = 2
 EXIT_ENVIRONMENT = 1
 EXIT_INTERRUPTED = 130
+
+
+class ArgumentParser(argparse.ArgumentParser):
+    """argparse with a one-line error (InputError, exit 2) instead of the usage block."""
+
+    def error(self, message):
+        raise InputError(f"{self.prog}: {message} (see --help)")
 
 
 def _environment_message(exc: OSError) -> str:

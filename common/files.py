@@ -62,6 +62,15 @@ def write_with(path, writer) -> None:
             tmp.unlink()
 
 
+def output_dir(path, flag: str = "--out") -> Path:
+    """An output folder, created if missing; a path that is a file is bad input (InputError)."""
+    path = Path(path)
+    if path.exists() and not path.is_dir():
+        raise InputError(f"{flag}: {path} is a file, not a folder")
+    path.mkdir(parents=True, exist_ok=True)
+    return path
+
+
 def clean_stale_temps(folder, recursive: bool = True) -> int:
     """Remove temp files (`.<name>.<pid>.tmp[.ext]`) a killed run left behind; returns how many."""
     folder = Path(folder)
