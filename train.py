@@ -279,8 +279,8 @@ def train_one_epoch(run: Run, bar, alpha: torch.Tensor, max_steps: int | None) -
             raise ConfigError(f"train: loss is {run.history[-1]} at step {run.step}; lower train.lr or check the data")
         if run.main:
             bar.update(1)
-            bar.set_postfix(loss=f"{float(loss):.3f}")
-            log_step(run, loss, parts, out, batch, samples / max(time.time() - t0, 1e-9))
+            bar.set_postfix(loss=f"{run.history[-1]:.3f}")
+            log_step(run, run.history[-1], parts, out, batch, samples / max(time.time() - t0, 1e-9))
         if t["val_every"] and run.step % t["val_every"] == 0:
             validate(run)
         if run.main and run.step % t["checkpoint_every"] == 0:
