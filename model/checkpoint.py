@@ -7,7 +7,7 @@ from pathlib import Path
 import torch
 
 from common.errors import InputError
-from common.files import write_with
+from common.files import write_bytes_atomic
 from geometry.rig import Rig, rig_from_dict
 
 
@@ -24,10 +24,15 @@ def build_model(cfg: dict, rig: Rig, num_classes: int = 5):
 
 
 def save_checkpoint(path, state: dict) -> None:
-    """Atomic: write a temp file, then rename."""
+    """Atomic: write a temp file, then rename. Serialised in memory first, so a full disk is an
+    OSError naming the file (torch's own writer raises a RuntimeError that names neither)."""
+    import io
+
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    write_with(path, lambda tmp: torch.save(state, tmp))
+    buf = io.BytesIO()
+    torch.save(state, buf)
+    write_bytes_atomic(path, buf.getvalue())
 
 
 def model_part(cfg: dict) -> dict:

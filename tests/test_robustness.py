@@ -92,6 +92,7 @@ def tiny_checkpoint(mini_dataset, tmp_path_factory):
     r = subprocess.run([sys.executable, "train.py", "--config", str(cfg), "--out", str(d / "run"), "--quiet"], cwd=ROOT, env=env,
                        capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stderr[-2000:]
+    (d / "stderr.txt").write_text(r.stderr)
     return d / "run" / "latest.pt"
 
 
@@ -196,3 +197,195 @@ def test_hostile_input(case, tmp_path, mini_dataset, request):
 def test_corpus_covers_every_entry_point():
     assert len(CASES) >= 100
     assert {c.command for c in CASES} == set(COMMANDS)
+
+
+# ------------------------------------------------------------------ faults: full disk, read-only, two writers, kills
+
+
+@contextlib.contextmanager
+def small_tmpfs(folder: Path, size: str = "300k"):
+    """A tmpfs of `size` at `folder` (root only; skipped elsewhere)."""
+    folder.mkdir(parents=True, exist_ok=True)
+    r = subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(folder)], capture_output=True, text=True)
+    if r.returncode != 0:
+        pytest.skip(f"cannot mount a tmpfs here ({r.stderr.strip() or 'not root'})")
+    try:
+        yield folder
+    finally:
+        subprocess.run(["umount", "-l", str(folder)], capture_output=True)
+
+
+def read_only(folder: Path):
+    r = subprocess.run(["mount", "-o", "remount,ro", str(folder)], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+
+
+def assert_one_line(code, stderr, want_code, *needles):
+    lines = error_lines(stderr)
+    assert "Traceback" not in stderr and code == want_code and len(lines) == 1, f"exit {code}:\n{stderr}"
+    for n in needles:
+        assert n in lines[0], f"{n!r} not in {lines[0]}"
+
+
+def no_temps(folder: Path) -> list[Path]:
+    return [p for p in folder.rglob("*") if TEMP.match(p.name)]
+
+
+def test_train_prints_no_warning(tiny_checkpoint):
+    assert (tiny_checkpoint.parents[1] / "stderr.txt").read_text() == ""
+
+
+@pytest.mark.parametrize("command", ["train", "eval", "stats"])
+def test_full_disk_is_exit_1_and_one_line(command, tmp_path, mini_dataset, request):
+    ctx = Ctx(tmp_path, mini_dataset, request)
+    with small_tmpfs(tmp_path / "disk") as disk:
+        out = disk / "out"
+        out.mkdir()
+        with contextlib.suppress(OSError), open(disk / "filler", "wb") as f:
+            for _ in range(1000):  # fill the disk
+                f.write(b"\0" * 4096)
+                f.flush()
+        os.truncate(disk / "filler", max(0, (disk / "filler").stat().st_size - 8192))  # room for the lock, not for the output
+        argv = {"train": lambda: ["--config", str(ctx.train_config()), "--out", str(out), "--quiet"],
+                "eval": lambda: ["--checkpoint", str(ctx.checkpoint), "--data", str(mini_dataset), "--out", str(out), "--pictures", "1"],
+                "stats": lambda: [str(mini_dataset), "--out", str(out)]}[command]()
+        code, stderr = run_in_process(command, argv)
+        assert_one_line(code, stderr, 1, str(out), "No space left")
+        assert not no_temps(disk)
+
+
+@pytest.mark.parametrize("command", ["generate", "fuse", "train", "eval", "index"])
+def test_read_only_output_is_exit_1_and_one_line(command, tmp_path, mini_dataset, request):
+    ctx = Ctx(tmp_path, mini_dataset, request)
+    with small_tmpfs(tmp_path / "ro", "4m") as ro:
+        if command in ("fuse", "index"):
+            shutil.copytree(mini_dataset, ro / "ds")
+        read_only(ro)
+        argv = {"generate": lambda: ["--config", str(ctx.dataset_config()), "--out", str(ro / "out"), "--no-progress"],
+                "fuse": lambda: [str(ro / "ds"), "--force", "--no-progress"],
+                "index": lambda: [str(ro / "ds")],
+                "train": lambda: ["--config", str(ctx.train_config()), "--out", str(ro / "out"), "--quiet"],
+                "eval": lambda: ["--checkpoint", str(ctx.checkpoint), "--data", str(mini_dataset), "--out", str(ro / "out")]}[command]()
+        code, stderr = run_in_process(command, argv)
+        assert_one_line(code, stderr, 1, str(ro), "Read-only file system")
+
+
+@pytest.fixture
+def lock_holder(tmp_path):
+    """Another process holding the lock of tmp_path/held (common.lock), as a running writer would."""
+    folder = tmp_path / "held"
+    p = subprocess.Popen([sys.executable, "-c", "import sys, time\nfrom common.lock import hold_lock\nwith hold_lock(sys.argv[1]):\n"
+                          "    print('held', flush=True)\n    time.sleep(60)\n", str(folder)],
+                         cwd=ROOT, env=dict(os.environ, PYTHONPATH=str(ROOT)), stdout=subprocess.PIPE, text=True)
+    assert p.stdout.readline().strip() == "held"
+    yield folder, p.pid
+    p.kill()
+    p.wait()
+
+
+@pytest.mark.parametrize("command", ["generate", "fuse", "train"])
+def test_a_second_writer_is_refused_naming_the_holder(command, lock_holder, tmp_path, mini_dataset, request):
+    folder, pid = lock_holder
+    ctx = Ctx(tmp_path, mini_dataset, request)
+    if command == "fuse":
+        shutil.copytree(mini_dataset, folder, dirs_exist_ok=True)
+    before = snapshot(folder)
+    argv = {"generate": lambda: ["--config", str(ctx.dataset_config()), "--out", str(folder), "--no-progress"],
+            "fuse": lambda: [str(folder), "--force", "--no-progress"],
+            "train": lambda: ["--config", str(ctx.train_config()), "--out", str(folder), "--quiet"]}[command]()
+    code, stderr = run_in_process(command, argv)
+    assert_one_line(code, stderr, 1, str(folder / ".lock"), f"pid {pid} on ")
+    assert snapshot(folder) == before
+
+
+def test_a_stale_lock_is_taken_over(tmp_path, mini_dataset):
+    ds = tmp_path / "ds"
+    shutil.copytree(mini_dataset, ds)
+    (ds / ".lock").write_text("99999999 some-host\n")  # a writer that died without removing it
+    vis = first_frame_dir(ds) / "labels" / "visibility.png"
+    vis.write_bytes(b"")  # a zero-byte label (a kill at the worst moment) is redone, not skipped as done
+    code, stderr = run_in_process("fuse", [str(ds), "--no-progress"])
+    assert code == 0, stderr
+    assert not (ds / ".lock").exists() and vis.stat().st_size > 0
+
+
+def first_frame_dir(ds: Path) -> Path:
+    return ds / json.loads((ds / "manifest.jsonl").read_text().splitlines()[0])["dir"]
+
+
+def children(pid: int) -> list[int]:
+    out = []
+    for task in Path(f"/proc/{pid}/task").glob("*"):
+        try:
+            out += [int(c) for c in (task / "children").read_text().split()]
+        except OSError:
+            pass
+    return out
+
+
+def alive(pid: int) -> bool:
+    try:
+        return "State:\tZ" not in Path(f"/proc/{pid}/status").read_text()
+    except OSError:
+        return False
+
+
+def test_kill_9_of_generate_leaves_no_worker_writing_and_resumes(tmp_path, mini_dataset, request):
+    import time
+
+    ctx = Ctx(tmp_path, mini_dataset, request)
+    cfg = ctx.dataset_config(frames=3, scenes=[{"recipe": "scenes/parking_lot.yaml"}])
+    out = tmp_path / "out"
+    p = subprocess.Popen([sys.executable, "-m", "dataset_tools.generate", "--config", str(cfg), "--out", str(out), "--workers", "1",
+                          "--no-progress"], cwd=ROOT, env=dict(os.environ, PYTHONPATH=str(ROOT)), stderr=subprocess.PIPE)
+    deadline = time.time() + 120
+    while not (out / ".lock").exists() or not children(p.pid):
+        assert p.poll() is None and time.time() < deadline, "generate ended before it could be killed"
+        time.sleep(0.05)
+    code, stderr = run_in_process("generate", ["--config", str(cfg), "--out", str(out), "--no-progress"])
+    assert_one_line(code, stderr, 1, str(out / ".lock"), f"pid {p.pid} on ")
+    workers = children(p.pid)
+    while not list(out.glob("parking_lot/*/*")):  # kill while the worker is writing a frame
+        assert time.time() < deadline
+        time.sleep(0.05)
+    p.kill()
+    p.wait()
+    time.sleep(0.5)
+    files = snapshot(out)
+    time.sleep(3)
+    assert snapshot(out) == files, "files changed after the driver was killed"
+    assert not [w for w in workers if alive(w)], "a Blender worker outlived its driver"
+    code, stderr = run_in_process("generate", ["--config", str(cfg), "--out", str(out), "--no-progress"])
+    assert code == 0, stderr
+    lines = (out / "manifest.jsonl").read_text().splitlines()
+    assert sorted(json.loads(x)["frame"] for x in lines) == [0, 1, 2]
+    assert not no_temps(out) and not (out / ".lock").exists()
+
+
+def test_kill_during_checkpoint_save_leaves_no_temp_after_the_next_run(tmp_path, tiny_checkpoint, mini_dataset, request):
+    import time
+
+    import torch
+
+    run = tmp_path / "run"
+    shutil.copytree(tiny_checkpoint.parent, run)
+    # a save of a big state into the run folder, killed while its temp file is being written
+    saver = subprocess.Popen([sys.executable, "-c", "import sys, torch\nfrom model.checkpoint import save_checkpoint\n"
+                              "save_checkpoint(sys.argv[1], {'x': torch.zeros(60_000_000)})\n", str(run / "latest.pt")],
+                             cwd=ROOT, env=dict(os.environ, PYTHONPATH=str(ROOT)))
+    deadline = time.time() + 60
+    while not no_temps(run):
+        assert saver.poll() is None and time.time() < deadline, "the save ended before it could be killed"
+        time.sleep(0.002)
+    saver.kill()
+    saver.wait()
+    assert no_temps(run), "the kill left no temp file to clean"
+    ctx = Ctx(tmp_path, mini_dataset, request)
+    # resuming with a new learning rate: the optimiser takes it, not the checkpoint's
+    code, stderr = run_in_process("train", ["--config", str(ctx.train_config()), "--out", str(run), "--quiet",
+                                            "--set", "train.max_steps=3", "--set", "train.lr=1e-5"])
+    assert code == 0, stderr
+    assert not no_temps(run)
+    ckpt = torch.load(run / "latest.pt", map_location="cpu", weights_only=False)
+    assert ckpt["step"] == 3 and ckpt["config"]["train"]["lr"] == 1e-5
+    assert {g["lr"] for g in ckpt["optimizer"]["param_groups"]} == {1e-5}
