@@ -47,7 +47,7 @@ def tiny_train_config(root) -> dict:
         "_base": str(ROOT / "configs/train/cpu_default.yaml"),
         "data": {"root": str(root), "val_split": "", "input_size": [64, 40], "grid": grid, "num_workers": 0},
         "model": copy.deepcopy(TINY_MODEL),
-        "train": {"epochs": 1, "max_steps": 2, "batch_size": 2, "lr": 3e-3, "threads": 1, "checkpoint_every": 1000,
+        "train": {"epochs": 10, "max_steps": 2, "batch_size": 2, "lr": 3e-3, "threads": 1, "checkpoint_every": 1000,
                   "image_every": 0, "log_every": 5},
     }
 
@@ -330,11 +330,13 @@ def alive(pid: int) -> bool:
         return False
 
 
-def test_kill_9_of_generate_leaves_no_worker_writing_and_resumes(tmp_path, mini_dataset, request):
+def test_kill_9_of_generate_leaves_no_worker_writing(tmp_path, request):
+    """Only the driver is killed (not its process group): its Blender worker must die with it. (That
+    a killed run resumes to the same files is tests/test_scenes.py::test_killed_run_resumes_to_the_same_files.)"""
     import time
 
-    ctx = Ctx(tmp_path, mini_dataset, request)
-    cfg = ctx.dataset_config(frames=3, scenes=[{"recipe": "scenes/parking_lot.yaml"}])
+    ctx = Ctx(tmp_path, None, request)
+    cfg = ctx.dataset_config(frames=2, scenes=[{"recipe": "scenes/parking_lot.yaml"}])
     out = tmp_path / "out"
     p = subprocess.Popen([sys.executable, "-m", "dataset_tools.generate", "--config", str(cfg), "--out", str(out), "--workers", "1",
                           "--no-progress"], cwd=ROOT, env=dict(os.environ, PYTHONPATH=str(ROOT)), stderr=subprocess.PIPE)
@@ -355,11 +357,11 @@ def test_kill_9_of_generate_leaves_no_worker_writing_and_resumes(tmp_path, mini_
     time.sleep(3)
     assert snapshot(out) == files, "files changed after the driver was killed"
     assert not [w for w in workers if alive(w)], "a Blender worker outlived its driver"
-    code, stderr = run_in_process("generate", ["--config", str(cfg), "--out", str(out), "--no-progress"])
-    assert code == 0, stderr
-    lines = (out / "manifest.jsonl").read_text().splitlines()
-    assert sorted(json.loads(x)["frame"] for x in lines) == [0, 1, 2]
-    assert not no_temps(out) and not (out / ".lock").exists()
+    from common.lock import hold_lock
+
+    assert (out / ".lock").read_text().split()[0] == str(p.pid)  # left behind by the kill ...
+    with hold_lock(out):  # ... and taken over by the next run
+        pass
 
 
 def test_kill_during_checkpoint_save_leaves_no_temp_after_the_next_run(tmp_path, tiny_checkpoint, mini_dataset, request):
