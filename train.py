@@ -25,7 +25,7 @@ import torch.distributed as dist
 from torch.utils.data import DataLoader
 
 from common.cli import ArgumentParser, EXIT_INTERRUPTED, run_cli
-from common.errors import ConfigError
+from common.errors import ConfigError, MachineError
 from common.files import clean_stale_temps, output_dir
 from common.lock import hold_lock
 from dataset_tools import DatasetIndex, colorize_train
@@ -119,7 +119,7 @@ def setup_distributed(device_kind: str):
     rank = int(os.environ.get("RANK", "0"))
     local = int(os.environ.get("LOCAL_RANK", "0"))
     if device_kind == "cuda" and not torch.cuda.is_available():
-        raise ConfigError("train.device: cuda, but this machine has no CUDA device (use auto or cpu)")
+        raise MachineError("train.device: cuda, but this machine has no CUDA device (use auto or cpu)")
     cuda = device_kind == "cuda" or (device_kind == "auto" and torch.cuda.is_available())
     device = torch.device(f"cuda:{local}" if cuda else "cpu")
     if cuda:

@@ -15,7 +15,7 @@ import argparse
 import os
 import sys
 
-from .errors import InputError
+from .errors import InputError, MachineError
 
 EXIT_BAD_INPUT = 2
 EXIT_ENVIRONMENT = 1
@@ -48,6 +48,9 @@ def run_cli(main, argv=None, prog: str | None = None) -> None:
     except InputError as exc:
         print(f"error: {exc}", file=sys.stderr)
         code = EXIT_BAD_INPUT
+    except MachineError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        code = EXIT_ENVIRONMENT
     except KeyboardInterrupt:
         print(f"{prog}: interrupted; run the same command again to resume", file=sys.stderr)
         code = EXIT_INTERRUPTED

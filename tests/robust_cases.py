@@ -28,6 +28,7 @@ class Case:
     build: Callable
     code: int = 2
     needles: tuple = ()
+    skip: str = ""  # a reason to skip on this machine ("" to run)
 
 
 CASES: list[Case] = []
@@ -348,7 +349,15 @@ add("train-dropout-2", "train", train(model={"dropout": 2}), needles=("t.yaml", 
 add("train-hue-5", "train", train(augment={"color_jitter": {"hue": 5}}), needles=("t.yaml", "augment.color_jitter.hue"))
 add("train-occlusion-weight-negative", "train", train(loss={"occlusion_weight": -5}), needles=("t.yaml", "loss.occlusion_weight"))
 add("train-val-split-typo", "train", train(data={"val_split": "eassy"}), needles=("data.val_split", "eassy"))
-add("train-device-cuda", "train", train(train={"device": "cuda"}), needles=("train.device", "cuda"))
+def _has_cuda() -> bool:
+    import torch
+
+    return torch.cuda.is_available()
+
+
+add("train-device-cuda", "train", train(train={"device": "cuda"}), code=1, needles=("train.device", "no CUDA"))
+if _has_cuda():
+    CASES[-1].skip = "this machine has CUDA"
 add("train-device-tpu", "train", train(train={"device": "tpu"}), needles=("t.yaml", "train.device"))
 add("train-threads-negative", "train", train(train={"threads": -1}), needles=("t.yaml", "train.threads"))
 add("train-epochs-zero", "train", train(train={"epochs": 0}), needles=("t.yaml", "train.epochs"))
