@@ -13,7 +13,6 @@ picture and, for a sample of frames, pictures as the paper's Figs. 6-8.
 
 from __future__ import annotations
 
-import argparse
 import io
 import time
 from pathlib import Path
@@ -21,9 +20,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from common.cli import run_cli
+from common.cli import ArgumentParser, run_cli
 from common.errors import InputError
-from common.files import write_bytes_atomic, write_figure_atomic, write_json_atomic, write_text_atomic
+from common.files import output_dir, write_bytes_atomic, write_figure_atomic, write_json_atomic, write_text_atomic
 from dataset_tools import SPLITS, TRAIN_PALETTE, DatasetIndex, colorize_train, read_frame
 from model import load_checkpoint
 from model.config import load_config
@@ -194,7 +193,7 @@ def evaluate_split(model, cfg, index: DatasetIndex, split: str, out: Path, pictu
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(prog="eval.py", description="Evaluate a checkpoint with the paper's protocol (per-class IoU on visible cells).")
+    p = ArgumentParser(prog="eval.py", description="Evaluate a checkpoint with the paper's protocol (per-class IoU on visible cells).")
     p.add_argument("--checkpoint", required=True, help="a checkpoint of train.py (latest.pt or best.pt)")
     p.add_argument("--split", default="all", choices=[*SPLITS, "all"], help="all: every split that has frames, each scored alone")
     p.add_argument("--data", help="data set root (default: the one the checkpoint was trained on)")
@@ -226,9 +225,7 @@ def main(argv=None) -> int:
     if not splits:
         raise EvalError(f"{index.root}: no split has frames")
     out = Path(a.out) if a.out else Path(a.checkpoint).parent / "eval"
-    if out.exists() and not out.is_dir():
-        raise EvalError(f"--out: {out} is a file, not a folder")
-    out.mkdir(parents=True, exist_ok=True)
+    output_dir(out)
     results = {s: evaluate_split(model, cfg, index, s, out, a.pictures, a.save_predictions) for s in splits}
     method = f"LSS-fisheye ({Path(a.checkpoint).parent.name}, {cfg['model']['pooling']} pooling)"
     report = {"checkpoint": str(a.checkpoint), "data": str(cfg["data"]["root"]), "step": ckpt.get("step"),

@@ -10,7 +10,7 @@ Read it top to bottom: prepare -> resume -> (train_one_epoch, validate, save_che
 
 from __future__ import annotations
 
-import argparse
+import contextlib
 import math
 import os
 import signal
@@ -24,9 +24,10 @@ import torch
 import torch.distributed as dist
 from torch.utils.data import DataLoader
 
-from common.cli import EXIT_INTERRUPTED, run_cli
-from common.errors import ConfigError
-from common.files import clean_stale_temps
+from common.cli import ArgumentParser, EXIT_INTERRUPTED, run_cli
+from common.errors import ConfigError, MachineError
+from common.files import clean_stale_temps, output_dir
+from common.lock import hold_lock
 from dataset_tools import DatasetIndex, colorize_train
 from model import CheckpointError, build_model, save_checkpoint
 from model.checkpoint import model_part
@@ -118,7 +119,7 @@ def setup_distributed(device_kind: str):
     rank = int(os.environ.get("RANK", "0"))
     local = int(os.environ.get("LOCAL_RANK", "0"))
     if device_kind == "cuda" and not torch.cuda.is_available():
-        raise ConfigError("train.device: cuda, but this machine has no CUDA device (use auto or cpu)")
+        raise MachineError("train.device: cuda, but this machine has no CUDA device (use auto or cpu)")
     cuda = device_kind == "cuda" or (device_kind == "auto" and torch.cuda.is_available())
     device = torch.device(f"cuda:{local}" if cuda else "cpu")
     if cuda:
@@ -278,8 +279,8 @@ def train_one_epoch(run: Run, bar, alpha: torch.Tensor, max_steps: int | None) -
             raise ConfigError(f"train: loss is {run.history[-1]} at step {run.step}; lower train.lr or check the data")
         if run.main:
             bar.update(1)
-            bar.set_postfix(loss=f"{float(loss):.3f}")
-            log_step(run, loss, parts, out, batch, samples / max(time.time() - t0, 1e-9))
+            bar.set_postfix(loss=f"{run.history[-1]:.3f}")
+            log_step(run, run.history[-1], parts, out, batch, samples / max(time.time() - t0, 1e-9))
         if t["val_every"] and run.step % t["val_every"] == 0:
             validate(run)
         if run.main and run.step % t["checkpoint_every"] == 0:
@@ -328,7 +329,7 @@ def train(cfg: dict, out_dir: Path, quiet: bool = False) -> dict:
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(prog="train.py", description="Train the LSS-fisheye BEV model.")
+    p = ArgumentParser(prog="train.py", description="Train the LSS-fisheye BEV model.")
     p.add_argument("--config", default="configs/train/cpu_default.yaml")
     p.add_argument("--out", help="run directory (default runs/<config name>)")
     p.add_argument("--set", action="append", default=[], metavar="SECTION.FIELD=VALUE", help="override a config field")
@@ -336,11 +337,12 @@ def main(argv=None) -> int:
     a = p.parse_args(argv)
     cfg = load_config(a.config, parse_overrides(a.set))
     out = Path(a.out or Path("runs") / Path(a.config).stem)
-    if out.exists() and not out.is_dir():
-        raise ConfigError(f"--out: {out} is a file, not a run folder")
-    out.mkdir(parents=True, exist_ok=True)
+    output_dir(out)
+    # one training run per run folder (rank 0 holds the lock for its DDP peers)
+    lock = hold_lock(out) if int(os.environ.get("RANK", "0")) == 0 else contextlib.nullcontext()
     try:
-        res = train(cfg, out, a.quiet)
+        with lock:
+            res = train(cfg, out, a.quiet)
     except KeyboardInterrupt:
         print(f"\ninterrupted; {out / 'latest.pt'} holds the last whole step: run the same command to resume", file=sys.stderr)
         return EXIT_INTERRUPTED

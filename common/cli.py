@@ -11,14 +11,22 @@ file system, permission, no CUDA) prints one line naming the path and exits 1; C
 
 from __future__ import annotations
 
+import argparse
 import os
 import sys
 
-from .errors import InputError
+from .errors import InputError, MachineError
 
 EXIT_BAD_INPUT = 2
 EXIT_ENVIRONMENT = 1
 EXIT_INTERRUPTED = 130
+
+
+class ArgumentParser(argparse.ArgumentParser):
+    """argparse with a one-line error (InputError, exit 2) instead of the usage block."""
+
+    def error(self, message):
+        raise InputError(f"{self.prog}: {message} (see --help)")
 
 
 def _environment_message(exc: OSError) -> str:
@@ -40,6 +48,9 @@ def run_cli(main, argv=None, prog: str | None = None) -> None:
     except InputError as exc:
         print(f"error: {exc}", file=sys.stderr)
         code = EXIT_BAD_INPUT
+    except MachineError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        code = EXIT_ENVIRONMENT
     except KeyboardInterrupt:
         print(f"{prog}: interrupted; run the same command again to resume", file=sys.stderr)
         code = EXIT_INTERRUPTED

@@ -13,3 +13,7 @@ class InputError(ValueError):
 
 class ConfigError(InputError):
     """A config or recipe file (YAML) that does not validate."""
+
+
+class MachineError(Exception):
+    """The machine cannot do what a valid input asks (no CUDA device, ...): one line, exit 1."""

@@ -30,6 +30,18 @@ def atomic_path(path) -> Path:
     return path.with_name(f".{path.name}.{os.getpid()}.tmp{path.suffix}")
 
 
+def _named(exc: OSError, path: Path) -> OSError:
+    """The same error naming the target (not the temp file, nor nothing as a failed write does)."""
+    return OSError(exc.errno, exc.strerror or str(exc), str(path)) if exc.errno else exc
+
+
+def _discard(tmp: Path) -> None:
+    try:
+        tmp.unlink()
+    except FileNotFoundError:
+        pass
+
+
 def write_bytes_atomic(path, data: bytes) -> None:
     path = Path(path)
     tmp = atomic_path(path)
@@ -37,9 +49,12 @@ def write_bytes_atomic(path, data: bytes) -> None:
         with open(tmp, "wb") as f:
             f.write(data)
         os.replace(tmp, path)
+    except OSError as exc:
+        _discard(tmp)
+        raise _named(exc, path) from None
     finally:
         if tmp.exists():
-            tmp.unlink()
+            _discard(tmp)
 
 
 def write_text_atomic(path, text: str) -> None:
@@ -57,9 +72,21 @@ def write_with(path, writer) -> None:
     try:
         writer(tmp)
         os.replace(tmp, path)
+    except OSError as exc:
+        _discard(tmp)
+        raise _named(exc, path) from None
     finally:
         if tmp.exists():
-            tmp.unlink()
+            _discard(tmp)
+
+
+def output_dir(path, flag: str = "--out") -> Path:
+    """An output folder, created if missing; a path that is a file is bad input (InputError)."""
+    path = Path(path)
+    if path.exists() and not path.is_dir():
+        raise InputError(f"{flag}: {path} is a file, not a folder")
+    path.mkdir(parents=True, exist_ok=True)
+    return path
 
 
 def clean_stale_temps(folder, recursive: bool = True) -> int:
@@ -114,6 +141,14 @@ class _NoAliasLoader(yaml.SafeLoader):
             return super().compose_node(parent, index)
         finally:
             self._depth -= 1
+
+
+# YAML 1.1 (PyYAML) reads 1e-5 as a string; take YAML 1.2's floats (a dot is optional)
+_NoAliasLoader.add_implicit_resolver(
+    "tag:yaml.org,2002:float",
+    re.compile(r"^[-+]?(?:[0-9][0-9_]*)(?:\.[0-9_]*)?[eE][-+]?[0-9]+$"),
+    list("-+0123456789"),
+)
 
 
 def parse_yaml(text: str):

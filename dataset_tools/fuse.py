@@ -8,15 +8,15 @@ visibility last); `--force` redoes every frame. Per-frame work is `labels.fusion
 
 from __future__ import annotations
 
-import argparse
 import os
 import sys
 from concurrent.futures import ProcessPoolExecutor
 from multiprocessing import get_context
 from pathlib import Path
 
-from common.cli import run_cli
+from common.cli import ArgumentParser, run_cli
 from common.files import clean_stale_temps
+from common.lock import hold_lock
 
 from .format.index import build_index, write_index
 from .format.layout import DatasetError, FrameFiles, Manifest
@@ -75,7 +75,7 @@ def fuse_dataset(root, cfg: FusionConfig, workers: int = 1, force: bool = False,
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m dataset_tools.fuse",
+    ap = ArgumentParser(prog="python -m dataset_tools.fuse",
                                  description="Fuse rendered frames into BEV labels (semantic, instance, visibility).")
     ap.add_argument("dataset")
     ap.add_argument("--workers", type=int, default=1, help="processes (default 1)")
@@ -86,7 +86,10 @@ def main(argv=None) -> int:
     if args.workers < 1:
         raise DatasetError(f"--workers: must be >= 1, got {args.workers}")
     cfg = FusionConfig.load(args.config) if args.config else FusionConfig()
-    problems = fuse_dataset(args.dataset, cfg, args.workers, args.force, progress=not args.no_progress)
+    if not Manifest(args.dataset).exists():
+        raise DatasetError(f"{Manifest(args.dataset).path}: missing")
+    with hold_lock(args.dataset):  # a second fuse (or a generate) on this data set is refused
+        problems = fuse_dataset(args.dataset, cfg, args.workers, args.force, progress=not args.no_progress)
     for p in problems:
         print(f"error: {p}", file=sys.stderr)
     return 1 if problems else 0

@@ -6,18 +6,19 @@ The driver is `generation.driver` (planning, Blender workers, manifest); the con
 
 from __future__ import annotations
 
-import argparse
 from pathlib import Path
 
-from common.cli import run_cli
+from common.cli import ArgumentParser, run_cli
 from common.errors import ConfigError
+from common.files import output_dir
+from common.lock import hold_lock
 
 from .generation.config import load_config
 from .generation.driver import parse_shard, run
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m dataset_tools.generate", description="Render procedural road scenes through the fisheye rig.")
+    ap = ArgumentParser(prog="python -m dataset_tools.generate", description="Render procedural road scenes through the fisheye rig.")
     ap.add_argument("--config", required=True, type=Path, help="configs/dataset/<preset>.yaml")
     ap.add_argument("--out", required=True, type=Path)
     ap.add_argument("--shard", default="0/1", help="i/N: render every N-th job starting at i")
@@ -28,7 +29,9 @@ def main(argv=None) -> int:
     if a.workers is not None and a.workers < 1:
         raise ConfigError(f"--workers: must be >= 1, got {a.workers}")
     cfg = load_config(a.config)
-    return run(cfg, a.out, shard, a.workers, progress=not a.no_progress)
+    out = output_dir(a.out)
+    with hold_lock(out):  # a second generate on this --out is refused, naming the holder
+        return run(cfg, out, shard, a.workers, progress=not a.no_progress)
 
 
 if __name__ == "__main__":

@@ -3,15 +3,14 @@
 
 from __future__ import annotations
 
-import argparse
 
-from common.cli import run_cli
+from common.cli import ArgumentParser, run_cli
 
 from .format.index import build_index, write_index
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m dataset_tools.index", description="Build <dataset>/index.json from the manifest.")
+    ap = ArgumentParser(prog="python -m dataset_tools.index", description="Build <dataset>/index.json from the manifest.")
     ap.add_argument("dataset")
     args = ap.parse_args(argv)
     index = build_index(args.dataset)

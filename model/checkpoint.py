@@ -7,7 +7,7 @@ from pathlib import Path
 import torch
 
 from common.errors import InputError
-from common.files import write_with
+from common.files import write_bytes_atomic
 from geometry.rig import Rig, rig_from_dict
 
 
@@ -24,10 +24,15 @@ def build_model(cfg: dict, rig: Rig, num_classes: int = 5):
 
 
 def save_checkpoint(path, state: dict) -> None:
-    """Atomic: write a temp file, then rename."""
+    """Atomic: write a temp file, then rename. Serialised in memory first, so a full disk is an
+    OSError naming the file (torch's own writer raises a RuntimeError that names neither)."""
+    import io
+
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    write_with(path, lambda tmp: torch.save(state, tmp))
+    buf = io.BytesIO()
+    torch.save(state, buf)
+    write_bytes_atomic(path, buf.getvalue())
 
 
 def model_part(cfg: dict) -> dict:
@@ -48,10 +53,27 @@ def load_checkpoint(path, expect_config: dict | None = None, map_location="cpu")
         if not isinstance(ckpt, dict) or k not in ckpt:
             raise CheckpointError(f"{path}: not a checkpoint of train.py (missing '{k}')")
     cfg = ckpt["config"]
+    from .config import validate
+
+    if not isinstance(cfg, dict):
+        raise CheckpointError(f"{path}: config: must be a mapping, got {type(cfg).__name__}")
+    try:
+        cfg = validate(cfg, f"{path}: config")
+    except InputError as exc:
+        raise CheckpointError(str(exc)) from None
     if expect_config is not None and model_part(expect_config) != model_part(cfg):
         diff = [k for k in model_part(cfg) if model_part(cfg)[k] != model_part(expect_config)[k]]
         raise CheckpointError(f"{path}: checkpoint is from another config ({', '.join(diff)} differ)")
     rig = rig_from_dict(ckpt["rig"], f"{path}: rig")
     model = build_model(cfg, rig, ckpt.get("num_classes", 5))
-    model.load_state_dict(ckpt["model"])
+    load_weights(model, ckpt["model"], path)
     return model, cfg, ckpt
+
+
+def load_weights(model, state, path) -> None:
+    """model.load_state_dict(state), a mismatch (another shape, missing keys) being one CheckpointError line."""
+    try:
+        model.load_state_dict(state)
+    except (RuntimeError, ValueError, KeyError, TypeError, AttributeError) as exc:
+        first = str(exc).strip().splitlines()[1:2] or str(exc).strip().splitlines()[:1] or [type(exc).__name__]
+        raise CheckpointError(f"{path}: does not fit this model ({first[0].strip()[:160]})") from None

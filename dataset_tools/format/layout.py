@@ -101,7 +101,7 @@ def read_meta(frame_dir) -> dict:
     return meta
 
 
-def _complete_lines(path: Path) -> list[str]:
+def _complete_lines(path: Path) -> list[bytes]:
     """The newline-terminated lines of a file (a torn last line is left out)."""
     try:
         data = path.read_bytes()
@@ -110,7 +110,7 @@ def _complete_lines(path: Path) -> list[str]:
     except OSError as exc:
         raise DatasetError(f"{path}: cannot read ({exc.strerror})") from None
     end = data.rfind(b"\n")
-    return data[: end + 1].decode("utf-8", errors="replace").splitlines() if end >= 0 else []
+    return data[: end + 1].splitlines() if end >= 0 else []
 
 
 class Manifest:
@@ -168,7 +168,11 @@ class Manifest:
                 os.fsync(f.fileno())
 
 
-def _parse(line: str):
+def _parse(line: bytes):
+    try:
+        line = line.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        return None, f"not UTF-8 text (byte {exc.start})"
     try:
         e = json.loads(line)
     except json.JSONDecodeError as exc:

@@ -121,28 +121,32 @@ def read_png(path, dtype=None, channels: int | None = None) -> np.ndarray:
     return np.ascontiguousarray(a)
 
 
-def read_labels(frame_dir) -> dict:
-    """semantic (H, W) uint8, instance (H, W) uint16, visibility (H, W) float32 in [0, 1]."""
+def read_labels(frame_dir, num_classes: int | None = None) -> dict:
+    """semantic (H, W) uint8, instance (H, W) uint16, visibility (H, W) float32 in [0, 1]. With
+    `num_classes`, a semantic id >= num_classes is refused (DatasetError naming the PNG)."""
     f = FrameFiles(frame_dir)
     d = f.labels
     sem = read_png(f.semantic, np.uint8, 1)
     ins = read_png(f.instance, np.uint16, 1)
     vis = read_png(f.visibility, np.uint16, 1)
+    if num_classes is not None and sem.max(initial=0) >= num_classes:
+        raise DatasetError(f"{f.semantic}: class id {int(sem.max())}, beyond the {num_classes} classes of the data set")
     if not sem.shape == ins.shape == vis.shape:
         raise DatasetError(f"{d}: label shapes differ (semantic {sem.shape}, instance {ins.shape}, visibility {vis.shape})")
     return {"semantic": sem, "instance": ins, "visibility": vis.astype(np.float32) / VISIBILITY_SCALE}
 
 
-def read_frame(ref, cameras=None) -> dict:
+def read_frame(ref, cameras=None, num_classes: int | None = None) -> dict:
     """One frame: images {name: (H, W, 3) uint8 RGB}, semantic (uint8), instance (uint16),
     visibility (float32 in [0, 1]) and meta (dict). `ref` is a FrameRef or a frame directory;
-    `cameras` picks camera names (default: every cam_<name>.png of the frame)."""
+    `cameras` picks camera names (default: every cam_<name>.png of the frame); `num_classes`
+    refuses semantic ids beyond it."""
     files = FrameFiles(ref.dir if isinstance(ref, FrameRef) else ref)
     names = files.camera_names() if cameras is None else list(cameras)
     if not names:
         raise DatasetError(f"{files.dir}: no cam_<name>.png images")
     images = {n: read_png(files.camera_png(n), np.uint8, 3) for n in names}
-    out = {"images": images, **read_labels(files.dir)}
+    out = {"images": images, **read_labels(files.dir, num_classes)}
     out["meta"] = read_meta(files.dir)
     return out
 

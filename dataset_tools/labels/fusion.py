@@ -171,6 +171,8 @@ def read_camera_passes(path) -> dict:
     """distance (H, W) float32, semantic and instance (H, W) int64 from a cam_<name>.exr."""
     ch = read_exr_checked(path)
     dist = _find(ch, path, "distance", "depth")
+    if np.isnan(dist).any():
+        raise DatasetError(f"{path}: channel 'distance' has NaN")
     return {
         "distance": np.asarray(dist, np.float32),
         "semantic": _labels_int(_find(ch, path, "semantic", "indexma"), path, "semantic"),

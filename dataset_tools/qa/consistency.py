@@ -13,11 +13,12 @@ street score is below the threshold are listed.
 
 from __future__ import annotations
 
-import argparse
 from pathlib import Path
 
 import numpy as np
 
+from common.cli import ArgumentParser
+from common.errors import InputError
 from common.files import write_json_atomic
 
 from ..format.reader import DatasetIndex, read_labels
@@ -74,7 +75,7 @@ def frame_consistency(frame_dir, cfg: FusionConfig | None = None, min_visibility
                       tolerance_cells: int = 1) -> dict:
     cfg = cfg or FusionConfig()
     meta, rig, cameras, _ = load_frame_passes(frame_dir)
-    labels = read_labels(frame_dir)
+    labels = read_labels(frame_dir, len(cfg.class_names))
     grid = frame_grid(meta, frame_dir)
     conf = camera_vs_labels(rig, cameras, labels["semantic"], labels["visibility"], grid, cfg, min_visibility,
                             tolerance_cells)
@@ -111,13 +112,18 @@ def format_report(r: dict) -> str:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m dataset_tools.consistency", description="Camera pixels vs fused BEV labels, per class.")
+    ap = ArgumentParser(prog="python -m dataset_tools.consistency", description="Camera pixels vs fused BEV labels, per class.")
     ap.add_argument("dataset")
     ap.add_argument("--threshold", type=float, default=0.97, help="list frames whose street consistency is below")
     ap.add_argument("--min-visibility", type=float, default=0.5)
     ap.add_argument("--tolerance", type=int, default=1, help="cells a label may be off (default 1)")
     ap.add_argument("--json", help="also write the report here")
     args = ap.parse_args(argv)
+    for flag, v in (("--threshold", args.threshold), ("--min-visibility", args.min_visibility)):
+        if not 0.0 <= v <= 1.0:  # also NaN
+            raise InputError(f"{flag}: must be in [0, 1], got {v}")
+    if args.tolerance < 0:
+        raise InputError(f"--tolerance: must be >= 0, got {args.tolerance}")
     r = dataset_consistency(args.dataset, threshold=args.threshold, min_visibility=args.min_visibility,
                             tolerance_cells=args.tolerance)
     print(format_report(r))

@@ -9,12 +9,13 @@ scene's first finished frame).
 
 from __future__ import annotations
 
-import argparse
 import sys
 from pathlib import Path
 
 import cv2
 import numpy as np
+
+from common.cli import ArgumentParser
 
 from ..format.exr import write_png_atomic
 from ..format.reader import read_png
@@ -68,10 +69,12 @@ def make_sheets(out_dir: Path, frame: int | None = None) -> list[Path]:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m dataset_tools.contact_sheet", description=__doc__.splitlines()[0])
+    ap = ArgumentParser(prog="python -m dataset_tools.contact_sheet", description=__doc__.splitlines()[0])
     ap.add_argument("out", type=Path, help="a generate --out directory")
     ap.add_argument("--frame", type=int, default=None)
     a = ap.parse_args(argv)
+    if a.frame is not None and a.frame < 0:
+        raise DatasetError(f"--frame: must be >= 0, got {a.frame}")
     if not a.out.is_dir():
         raise DatasetError(f"{a.out}: not a directory")
     made = make_sheets(a.out, a.frame)

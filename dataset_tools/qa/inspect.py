@@ -11,11 +11,13 @@ DIR (default <frame>/inspect or <name>_inspect beside an EXR).
 
 from __future__ import annotations
 
-import argparse
 from pathlib import Path
 
 import cv2
 import numpy as np
+
+from common.cli import ArgumentParser
+from common.files import output_dir
 
 from ..format.exr import write_png_atomic
 from ..format.layout import DatasetError
@@ -211,18 +213,16 @@ def inspect_frame(frame_dir: Path, out: Path, cfg: FusionConfig | None = None) -
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m dataset_tools.inspect", description="List an EXR's layers and write pictures of every pass and label.")
+    ap = ArgumentParser(prog="python -m dataset_tools.inspect", description="List an EXR's layers and write pictures of every pass and label.")
     ap.add_argument("path", help="a frame directory or one .exr")
     ap.add_argument("--out", help="folder for the pictures")
     args = ap.parse_args(argv)
     p = Path(args.path)
     if p.is_dir():
-        out = Path(args.out) if args.out else p / "inspect"
-        out.mkdir(parents=True, exist_ok=True)
+        out = output_dir(Path(args.out) if args.out else p / "inspect")
         text = inspect_frame(p, out)
     elif p.suffix.lower() == ".exr":
-        out = Path(args.out) if args.out else p.with_name(f"{p.stem}_inspect")
-        out.mkdir(parents=True, exist_ok=True)
+        out = output_dir(Path(args.out) if args.out else p.with_name(f"{p.stem}_inspect"))
         text = inspect_exr(p, out)
     else:
         raise DatasetError(f"{p}: not a frame directory or an .exr file")

@@ -8,12 +8,12 @@ Pictures and stats.json go to DIR (default <dataset>/stats).
 
 from __future__ import annotations
 
-import argparse
 from pathlib import Path
 
 import numpy as np
 
-from common.files import write_figure_atomic, write_json_atomic
+from common.cli import ArgumentParser
+from common.files import output_dir, write_figure_atomic, write_json_atomic
 
 from ..format.reader import DatasetIndex, read_labels, read_meta
 from ..labels.fusion import FusionConfig, camera_counts, effective_tau, frame_grid, load_frame_passes
@@ -24,7 +24,7 @@ VIS_BINS = 10
 
 
 def frame_stats(ref, n_classes: int, cfg: FusionConfig, cameras: bool) -> dict:
-    lab = read_labels(ref.dir)
+    lab = read_labels(ref.dir, n_classes)
     sem, vis = lab["semantic"], lab["visibility"]
     meta, rig, cams, _ = load_frame_passes(ref.dir) if cameras else (None, None, None, None)
     if meta is None:
@@ -154,14 +154,13 @@ def plot(st: dict, out: Path) -> list[Path]:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m dataset_tools.stats", description="Class frequencies, visibility histogram, coverage by distance and camera.")
+    ap = ArgumentParser(prog="python -m dataset_tools.stats", description="Class frequencies, visibility histogram, coverage by distance and camera.")
     ap.add_argument("dataset")
     ap.add_argument("--out", help="folder for stats.json and plots (default <dataset>/stats)")
     ap.add_argument("--no-cameras", action="store_true", help="skip coverage by camera (reads no EXR)")
     args = ap.parse_args(argv)
     st = dataset_stats(args.dataset, cameras=not args.no_cameras)
-    out = Path(args.out) if args.out else Path(args.dataset) / "stats"
-    out.mkdir(parents=True, exist_ok=True)
+    out = output_dir(Path(args.out) if args.out else Path(args.dataset) / "stats")
     write_json_atomic(out / "stats.json", st)
     plot(st, out)
     print(format_table(st))

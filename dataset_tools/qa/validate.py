@@ -8,12 +8,12 @@ Prints one line per problem, naming the file and what is wrong, and exits 1 when
 
 from __future__ import annotations
 
-import argparse
 import sys
 from pathlib import Path
 
 import numpy as np
 
+from common.cli import ArgumentParser
 from common.files import read_json
 
 from ..format.index import meta_rig
@@ -173,7 +173,7 @@ def validate(root, labels: bool = True, progress: bool = True) -> list[str]:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m dataset_tools.validate", description="Check every file of a data set; exit 1 on any problem.")
+    ap = ArgumentParser(prog="python -m dataset_tools.validate", description="Check every file of a data set; exit 1 on any problem.")
     ap.add_argument("dataset")
     ap.add_argument("--no-labels", action="store_true", help="renders only (before fusion)")
     args = ap.parse_args(argv)
