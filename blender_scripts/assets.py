@@ -97,3 +97,36 @@ def street_light_mesh(height: float, arm: float) -> tuple[MeshData, tuple[float,
     m.box((0, arm / 2, height - 0.1), (0.12, arm, 0.1), mat="metal")
     m.box((0, arm, height - 0.25), (0.5, 0.25, 0.18), mat="lamp")
     return m, (0.0, arm, height - 0.3)
+
+
+EGO_KINDS = ("car", "suv")  # hatchback, SUV
+EGO_PAINT = ((0.55, 0.56, 0.58), (0.08, 0.09, 0.1), (0.8, 0.8, 0.78), (0.35, 0.05, 0.05), (0.1, 0.15, 0.3))
+
+
+def ego_body(camera_positions, rng: np.random.Generator):
+    """The ego car around the rig: (MeshData in the ego frame, footprint [x_min, x_max, y_min,
+    y_max], kind, paint colour). The body ends 5 cm inside the outermost mounts (front and rear
+    cameras stay in front of the bumpers, mirror cameras 8 cm outside the doors); a camera inside
+    the cabin (a windscreen camera) drops the cabin and roof so it still sees out."""
+    p = np.asarray(camera_positions, float).reshape(-1, 3)
+    x0, x1 = p[:, 0].min() + 0.05, p[:, 0].max() - 0.05
+    half_w = float(np.clip(np.abs(p[:, 1]).max() - 0.08, 0.7, 1.0))
+    if x1 - x0 < 2.5:  # mounts too close together to bound a car: a nominal 4.4 m car round them
+        c = (x0 + x1) / 2
+        x0, x1 = c - 2.2, c + 2.2
+    kind = EGO_KINDS[int(rng.integers(len(EGO_KINDS)))]
+    (_, _, h), _ = VEHICLE_SIZES[kind]
+    size = (x1 - x0, 2 * half_w, h * rng.uniform(0.97, 1.03))
+    body = vehicle_mesh(kind, size, rng)
+    v = body.vertices
+    lower_top = size[2] * 0.5 + 0.05
+    faces_z = np.array([v[list(f)][:, 2].min() for f in body.faces])
+    cab = faces_z >= lower_top - 0.051  # the cabin (glass, roof) above the lower body
+    inside = [(x0 < x < x1 and abs(y) < half_w and lower_top - 0.05 < z < size[2] + 0.05) for x, y, z in p]
+    out = MeshData()
+    for f, mat, up in zip(body.faces, body.mats, cab):
+        if up and any(inside):
+            continue
+        out.add(v[list(f)] + ((x0 + x1) / 2, 0.0, 0.0), [list(range(len(f)))], f"ego_{mat}")
+    colour = EGO_PAINT[int(rng.integers(len(EGO_PAINT)))]
+    return out, [float(x0), float(x1), -half_w, half_w], kind, colour

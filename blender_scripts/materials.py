@@ -36,6 +36,9 @@ MATERIAL_CLASSES = {
     "headlight": "vehicle",
     "taillight": "vehicle",
 }
+# the ego car's body: the traffic's materials again, painting the fine class `ego`
+EGO_MATERIALS = {f"ego_{n}": n for n in ("car_paint", "car_glass", "tyre", "headlight", "taillight")}
+MATERIAL_CLASSES.update({n: "ego" for n in EGO_MATERIALS})
 
 
 def _principled(name, color, rough=0.5, metallic=0.0, spec=0.5):
@@ -136,6 +139,9 @@ def build_materials(weather: dict) -> dict[str, bpy.types.Material]:
     m, b = make("taillight", (0.5, 0.02, 0.02), rough=0.2)
     if night:
         _emission(b, (1.0, 0.05, 0.02), 10.0)
+    for name, base in EGO_MATERIALS.items():
+        mats[name] = mats[base].copy()
+        mats[name].name = name
     for name, m in mats.items():
         m.pass_index = CLASS_IDS[MATERIAL_CLASSES[name]]
         # glowing windows and lamps are seen, not sampled as lights: the street lights and

@@ -51,7 +51,7 @@ def run_task(task: dict, state: dict) -> None:
         td = task["topdown"]
         grid = BevGrid(-td["bound"], td["bound"], -td["bound"], td["bound"], 2 * td["bound"] / td["size"])
         built = build_scene(recipe, rig, grid, td["height_m"], state["osl_dir"],
-                            task["render"].get("camera_method", "osl"))
+                            task["render"].get("camera_method", "osl"), task["render"].get("ego_body", True))
         configure_render(bpy.context.scene, task["render"]["samples"], task["render"]["denoise"],
                          task["threads"], task["render"]["max_bounces"],
                          task["render"].get("denoise_quality", "balanced"))
@@ -78,6 +78,7 @@ def run_task(task: dict, state: dict) -> None:
                     "strength": w["sun_strength"]},
             "seeds": {"scene": recipe["seed"], "cycles": seed},
             "rig": rig.to_dict(),
+            "ego": built.ego_meta,
             "camera_method": task["render"].get("camera_method", "osl"),
             "fit_errors_px": built.fit_errors,
             "topdown": {"grid": state["grid"].to_dict(), "height_m": task["topdown"]["height_m"]},

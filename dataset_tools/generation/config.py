@@ -52,6 +52,8 @@ SCHEMA = Section({
         "denoise_quality": Str(choices=DENOISE_QUALITIES, default="balanced"),
         "max_bounces": Num(0, 128, integer=True, default=4),
         "camera_method": Str(choices=("osl", "polynomial"), default="osl"),
+        # the ego car's body around the rig (class `ego`, a self-occlusion mask per camera)
+        "ego_body": Bool(default=True),
     }),
     "frames": Num(1, 10000, integer=True, default=None, nullable=True),  # overrides every recipe's frames.count
     "scenes": List(Any(), max_length=100_000),
