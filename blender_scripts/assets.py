@@ -161,13 +161,16 @@ def building_mesh(rng: np.random.Generator, length, depth, height) -> MeshData:
         z = f * floor_h + (floor_h - win_h) * 0.55
         if z + win_h > height - 0.3:
             break
-        for side in (-1, 1):
-            if bands:
+        if bands:
+            for side in (-1, 1):
                 m.box((0, side * (depth / 2 + 0.03), z), (length * 0.9, 0.06, win_h), mat="window")
-                continue
-            for k in range(n):
-                x = (k - (n - 1) / 2) * pitch
-                m.box((x, side * (depth / 2 + 0.03), z), (win_w, 0.06, win_h), mat="window")
+            continue
+        # a grid on the street side only, one quad per window 3 cm off the wall (cheap to trace)
+        y = -(depth / 2 + 0.03)
+        for k in range(n):
+            x = (k - (n - 1) / 2) * pitch
+            m.add([(x - win_w / 2, y, z), (x + win_w / 2, y, z), (x + win_w / 2, y, z + win_h), (x - win_w / 2, y, z + win_h)],
+                  [(0, 1, 2, 3)], "window")
     if shop:
         m.box((0, -(depth / 2 + 0.03), 0.35), (length * 0.86, 0.06, 2.5), mat="window")
         m.box((0, -(depth / 2 + 0.25), 2.95), (length * 0.9, 0.5, 0.12), mat="wall")  # awning / fascia
