@@ -84,7 +84,6 @@ def test_ego_body_in_every_camera_never_in_labels_or_counts(sampled):
     out = fusion.fuse_passes(rig, cameras, topdown, grid, cfg, fusion.ego_box(meta, cfg))
     foot = fusion.ego_mask(grid, box)
     assert foot.any() and (out["semantic"][foot] == 0).all() and (out["visibility"][foot] == 0).all()
-    from geometry.rig import Rig  # noqa: F401  (the frame's rig is what load_frame_passes returned)
     from dataset_tools.labels import visibility as V
 
     tables = V.ray_tables(rig)
