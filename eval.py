@@ -173,7 +173,8 @@ def evaluate_split(model, cfg, index: DatasetIndex, split: str, out: Path, pictu
         sample = ds[i]
         ref = ds.refs[i]
         t0 = time.perf_counter()
-        o = model(sample["images"][None])  # the nominal cameras: the model's cached geometry
+        geometry = [sample[k][None] if k in sample else None for k in ("point_cell", "intrinsics")]
+        o = model(sample["images"][None], *geometry)  # none: the nominal cameras, the model's cached geometry
         scores.seconds += time.perf_counter() - t0
         pred = o["semantic"][0].argmax(0) + 1  # the head scores classes 1..K-1; invalid is never predicted
         occ = o["occlusion"][0]

@@ -37,6 +37,8 @@ class BuiltScene:
     cameras: dict  # rig camera name -> bpy camera object
     topdown: object
     fit_errors: dict = field(default_factory=dict)
+    ego_body: list = field(default_factory=list)  # bpy objects of the ego car (hidden from the top-down camera)
+    ego_meta: dict | None = None  # meta.json's `ego`: footprint box, kind
 
 
 def scene_rng(seed: int, *keys: int) -> np.random.Generator:
@@ -69,7 +71,7 @@ def _mesh_object(name, data: MeshData, mats, instance: int, location=(0, 0, 0), 
 
 
 def build_scene(recipe: dict, rig, grid, topdown_height: float = 60.0, osl_workdir=None,
-                camera_method: str = "osl") -> BuiltScene:
+                camera_method: str = "osl", ego_body: bool = True) -> BuiltScene:
     """Everything static plus the movable ego and vehicles; call `set_frame` to pose them."""
     reset_blender()
     scene = bpy.context.scene
@@ -114,7 +116,18 @@ def build_scene(recipe: dict, rig, grid, topdown_height: float = 60.0, osl_workd
         cams[rc.name] = cam
         fit_errors[rc.name] = float(cam.get("fit_error_px", 0.0))
     topdown = add_topdown_camera(grid, topdown_height, parent=ego)
-    return BuiltScene(recipe, weather, layout, vehicles, objects, occluders, ego, cams, topdown, fit_errors)
+    body, ego_meta = [], None
+    if ego_body:
+        mesh, box, kind, colour = assets.ego_body([np.asarray(rc.cam_to_ego)[:3, 3] for rc in rig], scene_rng(seed, 5))
+        obj, _, _ = _mesh_object("ego_body", mesh, mats, next_id)
+        obj.color = (*colour, 1.0)
+        obj.parent = ego
+        objects[next_id] = {"name": obj.name, "class": "ego"}
+        body.append(obj)
+        ego_meta = {"box": box, "kind": kind, "instance": next_id}
+        next_id += 1
+    return BuiltScene(recipe, weather, layout, vehicles, objects, occluders, ego, cams, topdown, fit_errors,
+                      body, ego_meta)
 
 
 def _class_name(cid: int) -> str:

@@ -459,6 +459,43 @@ def furnish(lay: Layout, edges: list[Edge], recipe, rng) -> None:
             c, sn = math.cos(yaw), math.sin(yaw)
             lay.lamps.append((x + c * bulb[0] - sn * bulb[1], y + sn * bulb[0] + c * bulb[1], bulb[2]))
             n_light += 1
+    # a stream of its own, drawn after everything above, so the furniture leaves the rest as it was
+    street_furniture(lay, edges, recipe, np.random.default_rng(rng.integers(2**63)))
+
+
+SIGN_COLOURS = [(0.75, 0.05, 0.04), (0.05, 0.2, 0.6), (0.8, 0.8, 0.78), (0.85, 0.65, 0.05), (0.05, 0.4, 0.15)]
+
+
+def street_furniture(lay: Layout, edges: list, recipe, rng) -> None:
+    """Road signs along every edge (about one per 60 m) and bollards on sidewalks (one per 40 m)."""
+    sw = recipe["roadside"]["sidewalk_width"]
+    n_sign = n_bollard = 0
+    for e in edges:
+        spans = _intervals(e.s0, e.s1, e.skip)
+        total = sum(b - a for a, b in spans)
+        if total <= 0:
+            continue
+        for count, kind in ((rng.poisson(total / 60), "sign"), (rng.poisson(total / 40) if sw > 0 else 0, "bollard")):
+            for _ in range(int(count)):
+                u = rng.uniform(0, total)
+                s = spans[-1][1]
+                for a, b in spans:
+                    if u <= b - a:
+                        s = a + u
+                        break
+                    u -= b - a
+                (x, y), h = e.path.at(s)
+                nx, ny = -math.sin(h), math.cos(h)
+                off = e.offset + e.out * ((-0.3 if kind == "sign" else -0.25) if sw > 0 else 1.2)
+                z = Z_KERB if sw > 0 else 0.0
+                yaw = h + math.pi / 2  # plates face along the road
+                if kind == "sign":
+                    colour = SIGN_COLOURS[int(rng.integers(len(SIGN_COLOURS)))]
+                    lay.add(f"sign{n_sign}", assets.sign_mesh(rng), (x + nx * off, y + ny * off, z), yaw, colour)
+                    n_sign += 1
+                else:
+                    lay.add(f"bollard{n_bollard}", assets.bollard_mesh(), (x + nx * off, y + ny * off, z), yaw)
+                    n_bollard += 1
 
 
 def terrain(lay: Layout, size: float = 600.0) -> None:

@@ -2,7 +2,8 @@
 
 Per rig camera: `cam_<name>.exr` with R, G, B (half, linear scene light), `distance` (float32,
 along the ray), `semantic` and `instance` (uint32), `position.X/Y/Z` (float32, world frame);
-`cam_<name>.png`, 8-bit sRGB as Blender's view transform shows it.
+`cam_<name>.png`, 8-bit sRGB as Blender's view transform shows it. With the ego car's body in the
+scene: `ego` (half, 1 where the camera sees the ego body) and `cam_<name>_ego.png` (255 there).
 Top-down: `topdown.exr` with `all.*` (first hit from above) and `ground.*` (overhead occluders
 hidden), each `semantic`, `instance` (uint32) and `height` (float32, ego-frame z of the hit).
 """
@@ -18,6 +19,7 @@ import numpy as np
 
 from dataset_tools.format.exr import read_exr, write_exr, write_png_atomic
 from dataset_tools.format.layout import FrameFiles
+from dataset_tools.labels.classes import CLASS_IDS
 from dataset_tools.format.reader import read_png
 
 from .camera import use_camera
@@ -131,16 +133,23 @@ def _render_to_exr(scene, camera, width, height, tmpdir: Path, tag: str, png: Pa
     return out
 
 
-def render_fisheye(scene, camera, width, height, out_dir: Path, name: str, tmpdir: Path, clock: dict) -> None:
+def render_fisheye(scene, camera, width, height, out_dir: Path, name: str, tmpdir: Path, clock: dict,
+                   ego_mask: bool = False) -> None:
     files = FrameFiles(out_dir)
     p = _render_to_exr(scene, camera, width, height, tmpdir, f"cam_{name}", files.camera_png(name), clock)
     t0 = time.perf_counter()
-    write_exr(files.camera_exr(name), {
+    semantic = np.rint(p["IndexMA.X"]).astype(np.uint32)
+    extra = {}
+    if ego_mask:  # the camera's self-occlusion mask: 1 where the ego car's body is
+        ego = semantic == CLASS_IDS["ego"]
+        extra["ego"] = ego.astype(np.float16)
+        write_png_atomic(files.camera_ego_mask(name), ego.astype(np.uint8) * 255)
+    write_exr(files.camera_exr(name), {**extra,
         "R": p["Combined.R"].astype(np.float16),
         "G": p["Combined.G"].astype(np.float16),
         "B": p["Combined.B"].astype(np.float16),
         "distance": p["Depth.Z"].astype(np.float32),
-        "semantic": np.rint(p["IndexMA.X"]).astype(np.uint32),
+        "semantic": semantic,
         "instance": np.rint(p["IndexOB.X"]).astype(np.uint32),
         "position.X": p["Position.X"].astype(np.float32),
         "position.Y": p["Position.Y"].astype(np.float32),
@@ -149,10 +158,14 @@ def render_fisheye(scene, camera, width, height, out_dir: Path, name: str, tmpdi
     clock["write"] = clock.get("write", 0.0) + time.perf_counter() - t0
 
 
-def render_topdown(scene, camera, size: int, occluders, world_to_ego: np.ndarray, tmpdir: Path) -> dict:
+def render_topdown(scene, camera, size: int, occluders, world_to_ego: np.ndarray, tmpdir: Path,
+                   ego_body=()) -> dict:
     """Two label renders from above: everything, then with the overhead occluders hidden from
-    camera rays (hidden, not removed: see label_mode)."""
+    camera rays (hidden, not removed: see label_mode). The ego car's body is hidden from both: the
+    labels under it are the ground (the fusion marks its footprint invalid)."""
     out = {}
+    for obj in ego_body:
+        obj.visible_camera = False
     for group, hide in (("all", False), ("ground", True)):
         for obj in occluders:
             obj.visible_camera = not hide
@@ -163,7 +176,7 @@ def render_topdown(scene, camera, size: int, occluders, world_to_ego: np.ndarray
         out[f"{group}.semantic"] = np.rint(p["IndexMA.X"]).astype(np.uint32)
         out[f"{group}.instance"] = inst
         out[f"{group}.height"] = np.where(p["Depth.Z"] < BACKGROUND_DEPTH, z, 0.0).astype(np.float32)
-    for obj in occluders:
+    for obj in [*occluders, *ego_body]:
         obj.visible_camera = True
     return out
 
@@ -178,10 +191,11 @@ def render_frame(built, frame_dir: Path, fisheye_sizes: dict, topdown_size: int,
     clock: dict = {}
     for name, cam in built.cameras.items():
         w, h = fisheye_sizes[name]
-        render_fisheye(scene, cam, w, h, frame_dir, name, tmpdir, clock)
+        render_fisheye(scene, cam, w, h, frame_dir, name, tmpdir, clock, bool(built.ego_body))
     t1 = time.perf_counter()
     with label_mode(scene):
-        td = render_topdown(scene, built.topdown, topdown_size, built.occluders, frame_meta["world_to_ego"], tmpdir)
+        td = render_topdown(scene, built.topdown, topdown_size, built.occluders, frame_meta["world_to_ego"], tmpdir,
+                            built.ego_body)
     t2 = time.perf_counter()
     write_exr(FrameFiles(frame_dir).topdown, td)
     t3 = time.perf_counter()

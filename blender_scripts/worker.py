@@ -48,14 +48,21 @@ def run_task(task: dict, state: dict) -> None:
         if task["fisheye_size"]:
             w, h = task["fisheye_size"]
             rig = rig.map_cameras(lambda c: c.resized(w, h))
+        nominal = rig
+        if recipe.get("rig_jitter"):
+            from geometry.rig import jitter_rig
+
+            from .build_scene import scene_rng
+
+            rig = jitter_rig(rig, scene_rng(recipe["seed"], 6), recipe["rig_jitter"])
         td = task["topdown"]
         grid = BevGrid(-td["bound"], td["bound"], -td["bound"], td["bound"], 2 * td["bound"] / td["size"])
         built = build_scene(recipe, rig, grid, td["height_m"], state["osl_dir"],
-                            task["render"].get("camera_method", "osl"))
+                            task["render"].get("camera_method", "osl"), task["render"].get("ego_body", True))
         configure_render(bpy.context.scene, task["render"]["samples"], task["render"]["denoise"],
                          task["threads"], task["render"]["max_bounces"],
                          task["render"].get("denoise_quality", "balanced"))
-        state.update(key=key, built=built, rig=rig, grid=grid)
+        state.update(key=key, built=built, rig=rig, nominal=nominal, grid=grid)
         t_build = time.perf_counter() - t0
     built, rig = state["built"], state["rig"]
     sizes = {rc.name: (rc.camera.width, rc.camera.height) for rc in rig}
@@ -77,7 +84,9 @@ def run_task(task: dict, state: dict) -> None:
             "sun": {"elevation_deg": w["sun_elevation_deg"], "azimuth_deg": w["sun_azimuth_deg"],
                     "strength": w["sun_strength"]},
             "seeds": {"scene": recipe["seed"], "cycles": seed},
-            "rig": rig.to_dict(),
+            "rig": rig.to_dict(),  # this frame's calibration (jittered when the recipe asks)
+            "rig_nominal": state["nominal"].to_dict(),
+            "ego": built.ego_meta,
             "camera_method": task["render"].get("camera_method", "osl"),
             "fit_errors_px": built.fit_errors,
             "topdown": {"grid": state["grid"].to_dict(), "height_m": task["topdown"]["height_m"]},

@@ -23,12 +23,19 @@ def main(argv=None) -> int:
     ap.add_argument("--out", required=True, type=Path)
     ap.add_argument("--shard", default="0/1", help="i/N: render every N-th job starting at i")
     ap.add_argument("--workers", type=int, default=None, help="Blender processes (default: one per core)")
+    ap.add_argument("--scenes", nargs="+", default=None, metavar="NAME",
+                    help="render only these scenes of the config (e.g. one sampled scene again)")
     ap.add_argument("--no-progress", action="store_true")
     a = ap.parse_args(argv)
     shard = parse_shard(a.shard)
     if a.workers is not None and a.workers < 1:
         raise ConfigError(f"--workers: must be >= 1, got {a.workers}")
     cfg = load_config(a.config)
+    if a.scenes:
+        unknown = sorted(set(a.scenes) - {s["name"] for s in cfg["scenes"]})
+        if unknown:
+            raise ConfigError(f"--scenes: {a.config} has no scene '{unknown[0]}'")
+        cfg["scenes"] = [s for s in cfg["scenes"] if s["name"] in a.scenes]
     out = output_dir(a.out)
     with hold_lock(out):  # a second generate on this --out is refused, naming the holder
         return run(cfg, out, shard, a.workers, progress=not a.no_progress)

@@ -170,6 +170,38 @@ class Rig:
         return Rig([RigCamera(c.name, fn(c.camera), c.cam_to_ego.copy()) for c in self], self.name)
 
 
+# Per-scene rig jitter at scale 1: mount position (m, per axis), mount angles (deg, about each camera
+# axis), focal length (fraction); each drawn uniformly in +-these (docs/scene-variety.md).
+JITTER = {"translation_m": 0.03, "angle_deg": 2.0, "focal": 0.03}
+
+
+def focal_scaled(camera: Camera, f: float) -> Camera:
+    """The camera with its focal length times f (principal point, size and distortion kept)."""
+    d = camera.to_dict()
+    if "fx" in d:
+        d["fx"], d["fy"] = d["fx"] * f, d["fy"] * f
+    elif d["model"] == "radial_poly":  # rho(theta) in pixels: every coefficient scales with the focal
+        d["k"] = [k * f for k in d["k"]]
+    else:
+        raise ValueError(f"focal_scaled: no focal length in a {d['model']} camera")
+    return camera_from_dict(d)
+
+
+def jitter_rig(rig: Rig, rng: np.random.Generator, scale: float = 1.0) -> Rig:
+    """The rig with every camera's mount moved, turned and its focal length changed a little
+    (JITTER times `scale`), as a real car's cameras differ from the nominal calibration."""
+    cams = []
+    for rc in rig:
+        t = rng.uniform(-1, 1, 3) * JITTER["translation_m"] * scale
+        a = np.radians(rng.uniform(-1, 1, 3) * JITTER["angle_deg"] * scale)
+        f = 1.0 + float(rng.uniform(-1, 1)) * JITTER["focal"] * scale
+        m = rc.cam_to_ego.copy()
+        m[:3, :3] = m[:3, :3] @ rot_x(a[0]) @ rot_y(a[1]) @ rot_z(a[2])  # about the camera's own axes
+        m[:3, 3] += t
+        cams.append(RigCamera(rc.name, focal_scaled(rc.camera, f), m))
+    return Rig(cams, rig.name)
+
+
 def _extrinsics(e, where: str) -> np.ndarray:
     if not isinstance(e, dict):
         raise RigError(f"{where}: 'extrinsics' must be a mapping")

@@ -4,7 +4,9 @@ Each camera image is brought to the config's input size by a view transform that
 with it (`model.augment`). An augmented sample carries the lift geometry of its cameras
 (`point_cell`, which BEV cell every lifted point lands in, and their intrinsics descriptors, from
 `model.frustum.Frustum`); a sample without augmentation carries none, and the model uses its
-cached nominal geometry. Augmentation is drawn
+cached nominal geometry. A frame rendered through its own (jittered) rig (`FrameRef.own_rig`) is
+lifted with that rig: in a split holding such frames every sample carries its geometry, so a batch
+never mixes samples with and without it. Augmentation is drawn
 from a generator seeded by (seed, epoch, sample index), so a sample is the same whichever worker or
 DDP process loads it, and a resumed run sees the same data as an uninterrupted one.
 """
@@ -17,7 +19,7 @@ from torch.utils.data import Dataset
 
 from common.errors import InputError
 from dataset_tools.format.layout import INDEX, FrameFiles
-from dataset_tools.format.reader import DatasetIndex, downsample_labels, read_frame
+from dataset_tools.format.reader import DatasetIndex, downsample_labels, read_frame, rig_of_frame
 from geometry.bev import BevGrid
 
 from .augment import ColorJitter, random_transform, warp_image
@@ -45,6 +47,7 @@ class BevDataset(Dataset):
         self.class_names = self.index.class_names
         # thin classes win a block when labels are pooled to the model grid (by name: the class map is configurable)
         self.priority = tuple(self.class_names.index(n) for n in ("lane_marking", "vehicle") if n in self.class_names)
+        self.cfg = cfg
         self.frustum = Frustum(self.rig, cfg)
         self.input_size, self.grid = self.frustum.input_size, self.frustum.grid
         self.factor = label_factor(self.index.grid, self.grid, str(self.index.root / INDEX))
@@ -53,6 +56,21 @@ class BevDataset(Dataset):
         self.augment = a if (train and a["enabled"]) else None
         self.jitter = ColorJitter(**a["color_jitter"]) if self.augment else None
         self.epoch = 0
+        self.carry_geometry = any(r.own_rig for r in self.refs)
+        self._frusta: dict = {}  # scene -> Frustum of its own rig (a scene keeps one rig)
+
+    def frustum_of(self, ref, meta: dict) -> Frustum:
+        """The lift geometry of the frame's rig (the nominal one unless the frame has its own)."""
+        if not ref.own_rig:
+            return self.frustum
+        if ref.scene not in self._frusta:
+            if len(self._frusta) >= 16:
+                self._frusta.pop(next(iter(self._frusta)))
+            rig = rig_of_frame(ref, meta, self.rig)
+            if rig.names != self.names:
+                raise DataError(f"{FrameFiles(ref.dir).meta}: rig cameras {rig.names}, the index has {self.names}")
+            self._frusta[ref.scene] = Frustum(rig, self.cfg)
+        return self._frusta[ref.scene]
 
     def set_epoch(self, epoch: int) -> None:
         self.epoch = int(epoch)
@@ -66,14 +84,17 @@ class BevDataset(Dataset):
         rng = np.random.default_rng([self.seed, self.epoch, i])  # independent streams: no collisions
         seed = int(rng.integers(2**63))  # the colour jitter's torch seed
         sample = {}
+        frustum = self.frustum_of(ref, f["meta"])
         if self.augment:
             a = self.augment
-            transforms = [random_transform(rc.camera, self.input_size, rng, a["scale"], a["rotation_deg"], a["crop"]) for rc in self.rig]
-            sample["point_cell"], sample["intrinsics"] = self.frustum.geometry(transforms)
+            transforms = [random_transform(rc.camera, self.input_size, rng, a["scale"], a["rotation_deg"], a["crop"]) for rc in frustum.rig]
+            sample["point_cell"], sample["intrinsics"] = frustum.geometry(transforms)
         else:
-            transforms = self.frustum.nominal_transforms()
+            transforms = frustum.nominal_transforms()
+            if self.carry_geometry:
+                sample["point_cell"], sample["intrinsics"] = frustum.nominal
         imgs = []
-        for rc, t in zip(self.rig, transforms):
+        for rc, t in zip(frustum.rig, transforms):
             img = f["images"][rc.name]
             if img.shape[:2] != (rc.camera.height, rc.camera.width):
                 raise DataError(f"{FrameFiles(ref.dir).camera_png(rc.name)}: size {img.shape[1]}x{img.shape[0]}, rig says {rc.camera.width}x{rc.camera.height}")

@@ -17,9 +17,10 @@ from .layout import INDEX, MANIFEST, SPLITS, DatasetError, Manifest, read_meta
 DEFAULT_GRID = {"x_min": -25.0, "x_max": 25.0, "y_min": -25.0, "y_max": 25.0, "res": 0.125}
 
 
-def meta_rig(meta: dict):
-    """The rig calibration dict stored in a frame's meta.json (None if absent)."""
-    r = meta.get("rig")
+def meta_rig(meta: dict, key: str = "rig"):
+    """The rig calibration dict stored in a frame's meta.json (None if absent): `rig` the frame's
+    own, `rig_nominal` the rig before the scene's jitter (older frames: their `rig`)."""
+    r = meta.get(key) if key in meta else meta.get("rig")
     return r if isinstance(r, dict) and isinstance(r.get("cameras"), dict) else None
 
 
@@ -44,12 +45,13 @@ def build_index(root, class_names=None) -> dict:
     rig = grid = None
     for e in entries:
         meta = read_meta(root / e["dir"])
-        rig = rig or meta_rig(meta)
+        rig = rig or meta_rig(meta, "rig_nominal")
         grid = grid or meta_grid(meta)
         weather = e.get("weather") or meta_weather(meta)
-        splits.setdefault(str(e["split"]), []).append(
-            {"dir": str(e["dir"]), "scene": str(e["scene"]), "frame": e["frame"], "weather": str(weather)}
-        )
+        entry = {"dir": str(e["dir"]), "scene": str(e["scene"]), "frame": e["frame"], "weather": str(weather)}
+        if meta_rig(meta) is not None and meta_rig(meta) != rig:
+            entry["own_rig"] = True  # a per-frame rig (jittered): the reader lifts with meta.json's
+        splits.setdefault(str(e["split"]), []).append(entry)
     index = {
         "version": 1,
         "class_names": list(class_names or TRAIN_CLASSES),

@@ -42,7 +42,8 @@ VISIBILITY_PNG = "visibility.png"
 LABEL_PNGS = (SEMANTIC_PNG, INSTANCE_PNG, VISIBILITY_PNG)  # visibility last: its presence marks a frame fused
 VISIBILITY_SCALE = 65535.0  # visibility.png holds round(p(o) * VISIBILITY_SCALE) as uint16
 MANIFEST_FIELDS = ("scene", "frame", "split", "dir")
-SPLITS = ("train", "easy", "medium", "hard")
+SPLITS = ("train", "easy", "medium", "hard", "heldout")  # heldout: sampled scenes from seeds (and
+# optionally families / weather presets) the training split never used
 
 
 class DatasetError(InputError):

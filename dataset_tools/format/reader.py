@@ -29,6 +29,7 @@ class FrameRef:
     frame: int
     split: str
     weather: str = ""
+    own_rig: bool = False  # meta.json holds this frame's own (jittered) rig, not the index's
 
     @property
     def name(self) -> str:
@@ -64,7 +65,8 @@ class DatasetIndex:
             for n, e in enumerate(entries):
                 try:
                     refs.append(
-                        FrameRef(self.root / e["dir"], str(e["scene"]), int(e["frame"]), split, str(e.get("weather", "")))
+                        FrameRef(self.root / e["dir"], str(e["scene"]), int(e["frame"]), split, str(e.get("weather", "")),
+                                 bool(e.get("own_rig", False)))
                     )
                     if Path(e["dir"]).is_absolute() or ".." in Path(e["dir"]).parts:
                         raise ValueError
@@ -90,7 +92,8 @@ class DatasetIndex:
 
     @property
     def rig(self):
-        """The rig the frames were rendered with (geometry Rig)."""
+        """The nominal rig the frames were rendered with (geometry Rig); a frame with `own_rig`
+        was rendered through its meta.json `rig` (see rig_of_frame)."""
         if self._rig is None:
             from geometry.rig import rig_from_dict
 
@@ -149,6 +152,19 @@ def read_frame(ref, cameras=None, num_classes: int | None = None) -> dict:
     out = {"images": images, **read_labels(files.dir, num_classes)}
     out["meta"] = read_meta(files.dir)
     return out
+
+
+def rig_of_frame(ref, meta: dict, nominal):
+    """The rig a frame was rendered with: its meta.json `rig` when the index marks it `own_rig`,
+    else `nominal`."""
+    if not getattr(ref, "own_rig", False):
+        return nominal
+    from geometry.rig import RigError, rig_from_dict
+
+    try:
+        return rig_from_dict(meta.get("rig"), f"{FrameFiles(ref.dir).meta}: rig")
+    except RigError as exc:
+        raise DatasetError(str(exc)) from None
 
 
 def downsample_labels(semantic: np.ndarray, visibility: np.ndarray, factor: int, priority=(2, 1), num_classes: int = 5):

@@ -2,6 +2,14 @@
 
     cfg = load_config("configs/dataset/small.yaml")   # every scene's recipe loaded and checked
 
+A scene entry names a recipe (`- {recipe: scenes/x.yaml, split: train}`) or asks for sampled
+scenes (`- {sample: {count: 200, seed: 1}, split: train}`, generation.sampler). `hold_out:
+{families: [...], weather: [...]}` keeps those families / weather presets out of the training
+split (sampled training blocks do not draw them; a named training recipe using one is refused).
+Sampled scenes of a test split must come from seeds no training scene uses: a sample block's seed
+may not be reused by another block, and no recipe or traffic seed is shared between a sampled
+scene and a scene of the other side (train vs. the test splits); both are refused at load time.
+
 Relative paths (rig, recipes) are looked up as given (from the working directory), then beside
 the config, then in the repository. The `labels:` section belongs to the label fusion
 (dataset_tools.labels.fusion.FusionConfig) and is checked there.
@@ -15,8 +23,9 @@ from common.errors import ConfigError
 from common.files import read_yaml
 from common.schema import Any, Bool, List, Name, Num, Section, Str
 
-from ..format.layout import SPLITS
-from .recipe import load_recipe
+from ..format.layout import LABEL_DIR, RECIPES_DIR, REPORT_DIR, SPLITS
+from .recipe import FAMILIES, WEATHER_PRESETS, load_recipe
+from .sampler import SAMPLE, sample_recipes
 
 REPO = Path(__file__).resolve().parents[2]
 DENOISE_QUALITIES = ("high", "balanced", "fast")  # OpenImageDenoise's, as Cycles names them
@@ -43,11 +52,18 @@ SCHEMA = Section({
         "denoise_quality": Str(choices=DENOISE_QUALITIES, default="balanced"),
         "max_bounces": Num(0, 128, integer=True, default=4),
         "camera_method": Str(choices=("osl", "polynomial"), default="osl"),
+        # the ego car's body around the rig (class `ego`, a self-occlusion mask per camera)
+        "ego_body": Bool(default=True),
     }),
     "frames": Num(1, 10000, integer=True, default=None, nullable=True),  # overrides every recipe's frames.count
     "scenes": List(Any(), max_length=100_000),
     "labels": Any(default=None, nullable=True),
+    "hold_out": Section({
+        "families": List(Str(choices=FAMILIES), min_length=0, default=[]),
+        "weather": List(Str(choices=WEATHER_PRESETS), min_length=0, default=[]),
+    }),
 })
+SAMPLED = Section({"sample": SAMPLE, "split": Str(choices=SPLITS, default="train")})
 
 
 def resolve(path, base: Path) -> Path:
@@ -68,27 +84,74 @@ def load_config(path) -> dict:
     if not Path(cfg["rig"]).is_file():
         raise ConfigError(f"{path}: rig: no such file {cfg['rig']}")
     _check_rig(cfg["rig"], path)
-    scenes, names = [], set()
+    hold = cfg["hold_out"]
+    scenes, names, blocks = [], set(), {}
     for i, s in enumerate(cfg["scenes"]):
         where = f"{path}: scenes[{i}]"
-        if not isinstance(s, dict) or "recipe" not in s:
-            raise ConfigError(f"{where}: must be a mapping with 'recipe'")
-        s = SCENE.validate(s, where)
-        overrides = s["overrides"]
-        if cfg["frames"] is not None:
-            frames = overrides.get("frames") or {}
-            if not isinstance(frames, dict):
-                raise ConfigError(f"{where}.overrides.frames: must be a mapping")
-            overrides = {**overrides, "frames": {**frames, "count": cfg["frames"]}}
-        recipe = load_recipe(resolve(s["recipe"], path.parent), overrides)
-        name = s["name"] or recipe["name"]
-        if name in names:
-            raise ConfigError(f"{where}.name: scene name '{name}' used twice")
-        names.add(name)
-        recipe["name"] = name
-        scenes.append({"name": name, "split": s["split"], "recipe": recipe})
+        if not isinstance(s, dict) or ("recipe" in s) == ("sample" in s):
+            raise ConfigError(f"{where}: must be a mapping with 'recipe' or 'sample' (one of them)")
+        if "sample" in s:
+            s = SAMPLED.validate(s, where)
+            recipes = _sampled(s, hold, blocks, where)
+            split, sampled = s["split"], True
+        else:
+            s = SCENE.validate(s, where)
+            recipe = load_recipe(resolve(s["recipe"], path.parent), s["overrides"])
+            recipe["name"] = s["name"] or recipe["name"]
+            recipes, split, sampled = [recipe], s["split"], False
+            if split == "train" and (recipe["family"] in hold["families"] or recipe["weather"]["preset"] in hold["weather"]):
+                raise ConfigError(f"{where}: a training scene uses a held-out family or weather preset "
+                                  f"({recipe['family']}, {recipe['weather']['preset']})")
+        for recipe in recipes:
+            if cfg["frames"] is not None:
+                recipe["frames"]["count"] = cfg["frames"]
+            name = recipe["name"]
+            if name in (RECIPES_DIR, REPORT_DIR, LABEL_DIR):
+                raise ConfigError(f"{where}.name: '{name}' is a reserved folder name of the data set")
+            if name in names:
+                raise ConfigError(f"{where}.name: scene name '{name}' used twice")
+            names.add(name)
+            scenes.append({"name": name, "split": split, "recipe": recipe, "sampled": sampled})
+    _check_disjoint(scenes, path)
     cfg["scenes"] = scenes
     return cfg
+
+
+def _sampled(s: dict, hold: dict, blocks: dict, where: str) -> list[dict]:
+    spec, split = s["sample"], s["split"]
+    if spec["seed"] in blocks:
+        raise ConfigError(f"{where}.sample.seed: {spec['seed']} is already the seed of {blocks[spec['seed']]} "
+                          f"(every sample block needs its own seed)")
+    blocks[spec["seed"]] = where.split(": ", 1)[1]
+    families = [f for f in FAMILIES if f not in hold["families"]]
+    weather = [w for w in WEATHER_PRESETS if w not in hold["weather"]]
+    if split == "train":
+        for key, allowed in (("families", families), ("weather", weather)):
+            bad = [v for v in spec[key] or () if v not in allowed]
+            if bad:
+                raise ConfigError(f"{where}.sample.{key}: {bad[0]} is held out (hold_out.{key})")
+        if not families or not weather:
+            raise ConfigError(f"{where}.sample: hold_out leaves no family or weather preset to train on")
+    return sample_recipes(spec, f"{where}.sample", families if split == "train" else None,
+                          weather if split == "train" else None)
+
+
+def _check_disjoint(scenes: list[dict], path: Path) -> None:
+    """No recipe or traffic seed shared between a sampled scene and a scene on the other side of the
+    train / test divide (named test scenes may reuse a training layout on purpose: `easy`)."""
+    seeds = lambda s: {s["recipe"]["seed"], s["recipe"]["traffic"]["seed"]}  # noqa: E731
+    by_seed: dict[int, list] = {}
+    for a in scenes:
+        if a["split"] == "train":
+            for x in seeds(a):
+                by_seed.setdefault(x, []).append(a)
+    for b in scenes:
+        if b["split"] == "train":
+            continue
+        for a in (a for x in seeds(b) for a in by_seed.get(x, ())):
+            if a["sampled"] or b["sampled"]:
+                raise ConfigError(f"{path}: scenes: '{b['name']}' ({b['split']}) shares a seed with training "
+                                  f"scene '{a['name']}': draw the test scenes from another sample seed")
 
 
 def _check_rig(rig_path: str, config: Path) -> None:

@@ -19,9 +19,9 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 from common.errors import ConfigError
-from common.files import clean_stale_temps
+from common.files import clean_stale_temps, write_text_atomic
 
-from ..format.layout import Manifest, frame_dir_name
+from ..format.layout import RECIPES_DIR, Manifest, frame_dir_name
 from .config import REPO
 
 MARK = "@@bev "
@@ -31,6 +31,20 @@ def plan(cfg: dict, shard: tuple[int, int]) -> list[tuple[dict, int]]:
     i, n = shard
     jobs = [(s, f) for s in cfg["scenes"] for f in range(s["recipe"]["frames"]["count"])]
     return [j for k, j in enumerate(jobs) if k % n == i]
+
+
+def write_recipes(cfg: dict, out: Path) -> None:
+    """<out>/recipes/<scene>.yaml: the checked recipe of every scene, so any scene (sampled ones
+    included) can be rendered again alone (`recipe: <out>/recipes/<scene>.yaml` in a config)."""
+    import yaml
+
+    d = out / RECIPES_DIR
+    d.mkdir(parents=True, exist_ok=True)
+    for s in cfg["scenes"]:
+        text = yaml.safe_dump(s["recipe"], sort_keys=False, default_flow_style=None, width=120)
+        path = d / f"{s['name']}.yaml"
+        if not path.is_file() or path.read_text() != text:
+            write_text_atomic(path, text)
 
 
 def _die_with_parent() -> None:
@@ -64,6 +78,7 @@ def run(cfg: dict, out: Path, shard=(0, 1), workers: int | None = None, progress
 
     out.mkdir(parents=True, exist_ok=True)
     clean_stale_temps(out)
+    write_recipes(cfg, out)
     manifest = Manifest(out)
     manifest.repair()
     done = manifest.done()

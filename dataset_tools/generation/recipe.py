@@ -23,6 +23,9 @@ SCHEMA = Section({
     "name": Name(default=None),  # default: the file's stem
     "family": Str(choices=FAMILIES),
     "seed": Num(0, 2**31 - 1, integer=True, default=0),
+    # scale of the per-scene jitter of the rig (geometry.rig jitter: mounts cm, angles deg, focal %);
+    # 0 renders through the nominal rig
+    "rig_jitter": Num(0.0, 1.0, default=0.0),
     "layout": Section({
         "length": Num(60, 2000, default=300.0),  # m of main road
         "lanes_per_direction": Num(1, 4, integer=True, default=2),

@@ -28,6 +28,7 @@ FINE_CLASSES = [
     (14, "pillar", False, (180, 165, 180)),  # bridge supports
     (15, "terrain", False, (152, 251, 152)),  # grass, verge
     (16, "barrier", False, (102, 102, 156)),  # guard rails, median walls
+    (17, "ego", False, (255, 0, 255)),  # the ego car's own body (camera self-occlusion); never a label
 ]
 
 CLASS_IDS = {name: cid for cid, name, _, _ in FINE_CLASSES}
@@ -57,6 +58,7 @@ DEFAULT_CLASS_MAP = {
     "pillar": "background",
     "terrain": "background",
     "barrier": "background",
+    "ego": "invalid",
 }
 
 

@@ -233,8 +233,12 @@ def frame_rig(meta: dict, frame_dir, fallback=None):
 
 
 def ego_box(meta: dict, cfg: FusionConfig):
-    """(x_min, x_max, y_min, y_max) of the ego body: the config's, else the default."""
-    return tuple(float(v) for v in cfg.ego_box) if cfg.ego_box is not None else DEFAULT_EGO_BOX
+    """(x_min, x_max, y_min, y_max) of the ego body: the config's, else the rendered body's
+    (meta.json `ego.box`), else the default."""
+    if cfg.ego_box is not None:
+        return tuple(float(v) for v in cfg.ego_box)
+    box = (meta.get("ego") or {}).get("box")
+    return tuple(float(v) for v in box) if box is not None else DEFAULT_EGO_BOX
 
 
 def ego_mask(grid, box) -> np.ndarray:
