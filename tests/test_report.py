@@ -42,8 +42,13 @@ def report(tiny_dataset, tmp_path_factory):
     audit = {"frames": {n: {"visible_no_los": 0.2 if i == 0 else 0.01, "los_invisible": 0.02} for i, n in enumerate(frames)},
              "overall": {"visible_no_los": 0.03, "los_invisible": 0.02}, "threshold": 0.1}
     (data / AUDIT).write_text(json.dumps(audit))
-    for cam in ("front", "left", "rear", "right"):  # frames[1] has ego masks (the others none)
-        write_ego_mask(data / frames[1], cam)
+    # frames[1] keeps the ego masks the renderer wrote; the others lose theirs (a data set of
+    # another renderer), so both kinds of frame are in the report
+    assert all(FrameFiles(data / frames[1]).camera_ego_mask(c).is_file() for c in ("front", "left", "rear", "right"))
+    for name in frames:
+        if name != frames[1]:
+            for p in (data / name).glob("cam_*_ego.png"):
+                p.unlink()
     r = subprocess.run([sys.executable, "-m", "dataset_tools.report", str(data), "--no-progress"], cwd=ROOT,
                        capture_output=True, text=True, timeout=600)
     assert r.returncode == 0, r.stderr[-2000:]
