@@ -2,6 +2,7 @@
 
 The driver is `generation.driver` (planning, Blender workers, manifest); the config is checked by
 `generation.config`. Bad input: one line, exit 2. Run again after an interruption to resume.
+`--backend ray` renders on a Ray cluster (`generation.ray_pool`, docs/scaling.md).
 """
 
 from __future__ import annotations
@@ -16,19 +17,32 @@ from .generation.config import load_config
 from .generation.driver import parse_shard, run
 
 
+def add_backend_args(ap: argparse.ArgumentParser) -> None:
+    ap.add_argument("--backend", choices=("local", "ray"), default="local",
+                    help="local: a process pool on this machine (default); ray: a Ray cluster")
+    ap.add_argument("--address", default=None,
+                    help="Ray cluster address (default: 'auto' when RAY_ADDRESS is set, else a Ray instance on this machine)")
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python -m dataset_tools.generate", description="Render procedural road scenes through the fisheye rig.")
     ap.add_argument("--config", required=True, type=Path, help="configs/dataset/<preset>.yaml")
     ap.add_argument("--out", required=True, type=Path)
     ap.add_argument("--shard", default="0/1", help="i/N: render every N-th job starting at i")
-    ap.add_argument("--workers", type=int, default=None, help="Blender processes (default: one per core)")
+    ap.add_argument("--workers", type=int, default=None,
+                    help="Blender processes (default: one per core; with Ray: as many as the cluster's CPUs hold)")
+    ap.add_argument("--threads", type=int, default=1, help="with --backend ray: CPU threads per Blender worker (default 1)")
+    add_backend_args(ap)
     ap.add_argument("--no-progress", action="store_true")
     a = ap.parse_args(argv)
     shard = parse_shard(a.shard)
     if a.workers is not None and a.workers < 1:
         raise ConfigError(f"--workers: must be >= 1, got {a.workers}")
+    if a.threads < 1:
+        raise ConfigError(f"--threads: must be >= 1, got {a.threads}")
     cfg = load_config(a.config)
-    return run(cfg, a.out, shard, a.workers, progress=not a.no_progress)
+    return run(cfg, a.out, shard, a.workers, progress=not a.no_progress, backend=a.backend,
+               address=a.address, threads=a.threads)
 
 
 if __name__ == "__main__":
