@@ -2,7 +2,7 @@
 start-up cost. Renders the same frames (two `small`-preset scenes) twice, both with one worker
 per core and one thread each; Ray runs a local instance (loopback only) started before timing.
 
-    from bench.ray import run; run()  ->  {"local_frames_per_s": ..., "ray_overhead_ratio": ...}
+    from bench.ray_backend import run; run()  ->  {"local_frames_per_s": ..., "ray_overhead_ratio": ...}
 """
 
 from __future__ import annotations
@@ -32,7 +32,7 @@ def _render(cfg: dict, **kw) -> float:
     with tempfile.TemporaryDirectory(prefix="bench_ray_") as tmp:
         t0 = time.perf_counter()
         if generate(cfg, Path(tmp), progress=False, **kw):
-            raise RuntimeError(f"bench.ray: generation failed ({kw})")
+            raise RuntimeError(f"bench.ray_backend: generation failed ({kw})")
         return time.perf_counter() - t0
 
 
