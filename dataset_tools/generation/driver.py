@@ -200,8 +200,6 @@ def run(cfg: dict, out: Path, shard=(0, 1), workers: int | None = None, progress
                     f.result()
     finally:
         bar.close()
-        if pool:
-            pool.close()
     if errors:
         for e in errors:
             if isinstance(e, WorkerFailed):

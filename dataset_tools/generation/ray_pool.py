@@ -45,9 +45,6 @@ class RayPool:
     def new_worker(self):
         return _Slot(self.ray, self.actor_cls.remote())
 
-    def close(self) -> None:
-        pass  # the connection stays: a following fuse in the same process reuses it
-
 
 class _Slot:
     def __init__(self, ray, actor):
@@ -58,9 +55,7 @@ class _Slot:
         try:
             for ref in self.actor.run.remote(task):
                 yield ray.get(ref)
-        except WorkerFailed:
-            raise
-        except ray.exceptions.RayError as exc:
+        except ray.exceptions.RayError as exc:  # a task's own exception arrives wrapped (as .cause)
             cause = getattr(exc, "cause", None)
             if isinstance(cause, WorkerFailed):
                 raise WorkerFailed(cause.message, cause.trace) from None
