@@ -146,6 +146,8 @@ def _drive(q: queue.Queue, new_worker, on_frame, errors: list, reschedule: bool)
                     errors.append(str(exc))
                     break
                 print(f"generate: {exc}; {len(rest)} frame(s) rescheduled", file=sys.stderr)
+                for f in rest:  # the lost worker's half-written temp files (its frames are nobody else's)
+                    clean_stale_temps(Path(task["out"]) / frame_dir_name(task["scene"], f))
                 q.put(dict(task, frames=rest, losses=losses))
                 worker.close()
                 worker = new_worker()
