@@ -22,7 +22,7 @@ $(VENV)/.done: requirements.txt Makefile
 	fi
 	@test -x $(PYTHON) || $(PY) -m venv $(VENV)
 	$(PYTHON) -m pip install -q -r requirements.txt
-	$(PYTHON) -c "import bpy, torch, OpenEXR, kornia, cv2; print('setup ok: bpy', bpy.app.version_string, 'torch', torch.__version__)"
+	$(PYTHON) -c "import bpy, torch, OpenEXR, kornia, cv2, ray; print('setup ok: bpy', bpy.app.version_string, 'torch', torch.__version__)"
 	@touch $@
 
 browser:
@@ -32,13 +32,14 @@ browser:
 	  apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $$missing >/dev/null; \
 	fi
 
-# Options: make dataset PRESET=small DATA=data/small WORKERS=2; make train CONFIG=...; make eval SPLIT=hard
+# Options: make dataset PRESET=small DATA=data/small WORKERS=2 BACKEND=ray (cluster: RAY_ADDRESS); make train CONFIG=...; make eval SPLIT=hard
 PRESET ?= small
 DATA ?= data/$(PRESET)
 CONFIG ?= configs/train/cpu_default.yaml
 RUN ?= runs/$(basename $(notdir $(CONFIG)))
 SPLIT ?= all
 WORKERS ?=
+BACKEND ?= local
 
 test: setup browser
 	$(PYTHON) -m pytest -q tests
@@ -47,8 +48,8 @@ bench: setup
 	$(PYTHON) -m bench.run
 
 dataset: setup
-	$(PYTHON) -m dataset_tools.generate --config configs/dataset/$(PRESET).yaml --out $(DATA) $(if $(WORKERS),--workers $(WORKERS))
-	$(PYTHON) -m dataset_tools.fuse $(DATA) --config configs/dataset/$(PRESET).yaml $(if $(WORKERS),--workers $(WORKERS))
+	$(PYTHON) -m dataset_tools.generate --config configs/dataset/$(PRESET).yaml --out $(DATA) --backend $(BACKEND) $(if $(WORKERS),--workers $(WORKERS))
+	$(PYTHON) -m dataset_tools.fuse $(DATA) --config configs/dataset/$(PRESET).yaml --backend $(BACKEND) $(if $(WORKERS),--workers $(WORKERS))
 	$(PYTHON) -m dataset_tools.report $(DATA)
 
 train: setup

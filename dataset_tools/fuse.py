@@ -1,9 +1,11 @@
 """Fuse every rendered frame of a data set into BEV labels, then (re)write index.json.
 
     python -m dataset_tools.fuse <dataset> [--workers N] [--config configs/dataset/small.yaml] [--force]
+                                 [--backend ray [--address ADDR]]
 
 Resumable: a frame whose three label PNGs exist is skipped (each PNG is written atomically, the
 visibility last); `--force` redoes every frame. Per-frame work is `labels.fusion.fuse_frame`.
+`--backend ray` fuses on a Ray cluster, frames as tasks in batches (labels.ray_fuse).
 """
 
 from __future__ import annotations
@@ -20,6 +22,7 @@ from common.lock import hold_lock
 
 from .format.index import build_index, write_index
 from .format.layout import DatasetError, FrameFiles, Manifest
+from .generate import add_backend_args
 from .labels.fusion import FusionConfig, fuse_frame, write_labels
 
 _WORKER_CFG: FusionConfig | None = None
@@ -46,7 +49,8 @@ def frames_to_fuse(root, force: bool = False) -> list[str]:
     return todo if force else [d for d in todo if not FrameFiles(d).labels_done()]
 
 
-def fuse_dataset(root, cfg: FusionConfig, workers: int = 1, force: bool = False, progress: bool = True) -> list[str]:
+def fuse_dataset(root, cfg: FusionConfig, workers: int = 1, force: bool = False, progress: bool = True,
+                 backend: str = "local", address: str | None = None) -> list[str]:
     """Fuse every manifest frame that has no labels yet; returns the problems (one line each)."""
     from tqdm import tqdm
 
@@ -55,7 +59,12 @@ def fuse_dataset(root, cfg: FusionConfig, workers: int = 1, force: bool = False,
     todo = frames_to_fuse(root, force)
     problems = []
     with tqdm(total=len(todo), desc="fuse", unit="frame", disable=not progress) as bar:
-        if workers <= 1:
+        if backend == "ray":
+            from .labels.ray_fuse import fuse_on_ray
+
+            results = fuse_on_ray(todo, cfg, address)
+            pool = None
+        elif workers <= 1:
             results = (fuse_one(d, cfg) for d in todo)
             pool = None
         else:
@@ -81,6 +90,7 @@ def main(argv=None) -> int:
     ap.add_argument("--workers", type=int, default=1, help="processes (default 1)")
     ap.add_argument("--config", help="dataset config YAML whose 'labels:' section sets the fusion")
     ap.add_argument("--force", action="store_true", help="redo frames that already have labels")
+    add_backend_args(ap)
     ap.add_argument("--no-progress", action="store_true")
     args = ap.parse_args(argv)
     if args.workers < 1:
@@ -89,7 +99,8 @@ def main(argv=None) -> int:
     if not Manifest(args.dataset).exists():
         raise DatasetError(f"{Manifest(args.dataset).path}: missing")
     with hold_lock(args.dataset):  # a second fuse (or a generate) on this data set is refused
-        problems = fuse_dataset(args.dataset, cfg, args.workers, args.force, progress=not args.no_progress)
+        problems = fuse_dataset(args.dataset, cfg, args.workers, args.force, progress=not args.no_progress,
+                                backend=args.backend, address=args.address)
     for p in problems:
         print(f"error: {p}", file=sys.stderr)
     return 1 if problems else 0

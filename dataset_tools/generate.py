@@ -2,6 +2,7 @@
 
 The driver is `generation.driver` (planning, Blender workers, manifest); the config is checked by
 `generation.config`. Bad input: one line, exit 2. Run again after an interruption to resume.
+`--backend ray` renders on a Ray cluster (`generation.ray_pool`, docs/scaling.md).
 """
 
 from __future__ import annotations
@@ -17,12 +18,22 @@ from .generation.config import load_config
 from .generation.driver import parse_shard, run
 
 
+def add_backend_args(ap: ArgumentParser) -> None:
+    ap.add_argument("--backend", choices=("local", "ray"), default="local",
+                    help="local: a process pool on this machine (default); ray: a Ray cluster")
+    ap.add_argument("--address", default=None,
+                    help="Ray cluster address (default: 'auto' when RAY_ADDRESS is set, else a Ray instance on this machine)")
+
+
 def main(argv=None) -> int:
     ap = ArgumentParser(prog="python -m dataset_tools.generate", description="Render procedural road scenes through the fisheye rig.")
     ap.add_argument("--config", required=True, type=Path, help="configs/dataset/<preset>.yaml")
     ap.add_argument("--out", required=True, type=Path)
     ap.add_argument("--shard", default="0/1", help="i/N: render every N-th job starting at i")
-    ap.add_argument("--workers", type=int, default=None, help="Blender processes (default: one per core)")
+    ap.add_argument("--workers", type=int, default=None,
+                    help="Blender processes (default: one per core; with Ray: as many as the cluster's CPUs hold)")
+    ap.add_argument("--threads", type=int, default=1, help="with --backend ray: CPU threads per Blender worker (default 1)")
+    add_backend_args(ap)
     ap.add_argument("--scenes", nargs="+", default=None, metavar="NAME",
                     help="render only these scenes of the config (e.g. one sampled scene again)")
     ap.add_argument("--no-progress", action="store_true")
@@ -30,6 +41,8 @@ def main(argv=None) -> int:
     shard = parse_shard(a.shard)
     if a.workers is not None and a.workers < 1:
         raise ConfigError(f"--workers: must be >= 1, got {a.workers}")
+    if a.threads < 1:
+        raise ConfigError(f"--threads: must be >= 1, got {a.threads}")
     cfg = load_config(a.config)
     if a.scenes:
         unknown = sorted(set(a.scenes) - {s["name"] for s in cfg["scenes"]})
@@ -38,7 +51,8 @@ def main(argv=None) -> int:
         cfg["scenes"] = [s for s in cfg["scenes"] if s["name"] in a.scenes]
     out = output_dir(a.out)
     with hold_lock(out):  # a second generate on this --out is refused, naming the holder
-        return run(cfg, out, shard, a.workers, progress=not a.no_progress)
+        return run(cfg, out, shard, a.workers, progress=not a.no_progress, backend=a.backend,
+                   address=a.address, threads=a.threads)
 
 
 if __name__ == "__main__":

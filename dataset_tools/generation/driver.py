@@ -58,6 +58,65 @@ def _die_with_parent() -> None:
         pass
 
 
+class WorkerFailed(Exception):
+    """The worker reported an error for its task (deterministic: the run stops)."""
+
+    def __init__(self, message: str, trace: str = ""):
+        super().__init__(message, trace)
+        self.message, self.trace = message, trace
+
+    def __str__(self) -> str:
+        return self.message
+
+
+class WorkerLost(Exception):
+    """The worker (process, Ray actor or node) went away mid-task: its unfinished frames can be
+    rescheduled."""
+
+
+class WorkerProcess:
+    """One `python -m blender_scripts.worker` process and its stdin/stdout protocol; used by the
+    local pool's threads and, one per actor, by the Ray backend (generation.ray_pool)."""
+
+    def __init__(self):
+        env = dict(os.environ, PYTHONPATH=os.pathsep.join(
+            [str(REPO)] + [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p]))
+        self.proc = subprocess.Popen([sys.executable, "-m", "blender_scripts.worker"], cwd=str(REPO), env=env,
+                                     stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,
+                                     text=True, bufsize=1,
+                                     preexec_fn=_die_with_parent if sys.platform.startswith("linux") else None)
+
+    def run(self, task: dict):
+        """Yield the worker's "frame" messages for `task`; WorkerFailed / WorkerLost otherwise."""
+        try:
+            self.proc.stdin.write(json.dumps(task) + "\n")
+            self.proc.stdin.flush()
+        except (BrokenPipeError, OSError):
+            raise WorkerLost(f"{task['scene']}: worker exited unexpectedly") from None
+        for line in self.proc.stdout:
+            if not line.startswith(MARK):
+                continue
+            try:
+                msg = json.loads(line[len(MARK):])
+            except json.JSONDecodeError:
+                raise WorkerLost(f"{task['scene']}: garbled worker message {line.strip()[:80]!r}") from None
+            if msg["event"] == "frame":
+                yield msg
+            elif msg["event"] == "task_done":
+                return
+            elif msg["event"] == "error":
+                raise WorkerFailed(f"{task['scene']}: {msg['message']}", msg.get("trace", ""))
+        raise WorkerLost(f"{task['scene']}: worker exited unexpectedly")
+
+    def close(self) -> None:
+        if self.proc.stdin:
+            try:
+                self.proc.stdin.close()
+            except OSError:
+                pass
+        self.proc.wait()
+
+
 def _tasks(jobs, workers: int) -> list[tuple[dict, list[int]]]:
     """Group frames by scene; split a scene among workers only when scenes are fewer."""
     by_scene: dict[str, tuple[dict, list[int]]] = {}
@@ -73,7 +132,48 @@ def _tasks(jobs, workers: int) -> list[tuple[dict, list[int]]]:
     return tasks
 
 
-def run(cfg: dict, out: Path, shard=(0, 1), workers: int | None = None, progress: bool = True) -> int:
+MAX_LOSSES = 3  # a task whose worker is lost this many times stops the run (a frame that kills Blender)
+
+
+def _drive(q: queue.Queue, new_worker, on_frame, errors: list, reschedule: bool) -> None:
+    """One pool slot: take tasks from `q` until it is empty, feeding `on_frame` each finished frame.
+    A lost worker's unfinished frames go back on the queue (when `reschedule`) and a new worker
+    takes the slot; frames already reported are not redone."""
+    worker = new_worker()
+    try:
+        while not errors:
+            try:
+                task = q.get_nowait()
+            except queue.Empty:
+                break
+            done: set[int] = set()
+            try:
+                for msg in worker.run(task):
+                    on_frame(task, msg)
+                    done.add(msg["frame"])
+            except WorkerFailed as exc:
+                errors.append(exc)
+            except WorkerLost as exc:
+                rest = [f for f in task["frames"] if f not in done]
+                losses = task.get("losses", 0) + 1
+                if not reschedule or losses >= MAX_LOSSES:
+                    errors.append(str(exc))
+                    break
+                print(f"generate: {exc}; {len(rest)} frame(s) rescheduled", file=sys.stderr)
+                for f in rest:  # the lost worker's half-written temp files (its frames are nobody else's)
+                    clean_stale_temps(Path(task["out"]) / frame_dir_name(task["scene"], f))
+                q.put(dict(task, frames=rest, losses=losses))
+                worker.close()
+                worker = new_worker()
+    finally:
+        worker.close()
+
+
+def run(cfg: dict, out: Path, shard=(0, 1), workers: int | None = None, progress: bool = True,
+        backend: str = "local", address: str | None = None, threads: int = 1) -> int:
+    """Render this shard's missing frames into `out`. backend "local": `workers` Blender processes
+    on this machine (default one per core, the cores shared among them); "ray": one actor per
+    Blender process on the Ray cluster at `address`, `threads` cores each (generation.ray_pool)."""
     from tqdm import tqdm
 
     out.mkdir(parents=True, exist_ok=True)
@@ -83,66 +183,46 @@ def run(cfg: dict, out: Path, shard=(0, 1), workers: int | None = None, progress
     manifest.repair()
     done = manifest.done()
     todo = [(s, f) for s, f in plan(cfg, shard) if (s["name"], f) not in done]
-    cores = os.cpu_count() or 1
-    workers = max(1, min(workers or cores, len(todo) or 1))
-    threads = max(1, cores // workers)
+    pool = None
+    if backend == "ray":
+        from .ray_pool import RayPool
+
+        pool = RayPool(address, threads, workers)
+        workers = max(1, min(pool.slots, len(todo) or 1))
+    else:
+        cores = os.cpu_count() or 1
+        workers = max(1, min(workers or cores, len(todo) or 1))
+        threads = max(1, cores // workers)
     q: queue.Queue = queue.Queue()
     for s, frames in _tasks(todo, workers):
         q.put({"scene": s["name"], "split": s["split"], "recipe": s["recipe"], "frames": frames,
-               "out": str(out), "rig": cfg["rig"], "fisheye_size": cfg["fisheye_size"],
+               "out": str(out.resolve()), "rig": cfg["rig"], "fisheye_size": cfg["fisheye_size"],
                "topdown": cfg["topdown"], "render": cfg["render"], "threads": threads})
     bar = tqdm(total=len(todo), desc=f"{cfg['name']} shard {shard[0]}/{shard[1]}", unit="frame",
                disable=not progress)
-    errors: list[str] = []
-    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(REPO)] + [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p]))
+    errors: list = []
 
-    def drive():
-        proc = subprocess.Popen([sys.executable, "-m", "blender_scripts.worker"], cwd=str(REPO), env=env,
-                                stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True, bufsize=1,
-                                preexec_fn=_die_with_parent if sys.platform.startswith("linux") else None)
-        try:
-            while not errors:
-                try:
-                    task = q.get_nowait()
-                except queue.Empty:
-                    break
-                proc.stdin.write(json.dumps(task) + "\n")
-                proc.stdin.flush()
-                for line in proc.stdout:
-                    if not line.startswith(MARK):
-                        continue
-                    try:
-                        msg = json.loads(line[len(MARK):])
-                    except json.JSONDecodeError:
-                        errors.append(f"{task['scene']}: garbled worker message {line.strip()[:80]!r}")
-                        break
-                    if msg["event"] == "frame":
-                        s = task
-                        manifest.append({"scene": msg["scene"], "frame": msg["frame"], "split": s["split"],
-                                         "family": s["recipe"]["family"], "dir": frame_dir_name(msg["scene"], msg["frame"]),
-                                         "files": msg["files"]})
-                        bar.update(1)
-                    elif msg["event"] == "task_done":
-                        break
-                    elif msg["event"] == "error":
-                        with open(out / "worker_errors.log", "a") as log:
-                            log.write(msg.get("trace", "") + "\n")
-                        errors.append(f"{task['scene']}: {msg['message']} (trace in {out / 'worker_errors.log'})")
-                        break
-                else:
-                    errors.append(f"{task['scene']}: worker exited unexpectedly")
-        finally:
-            if proc.stdin:
-                proc.stdin.close()
-            proc.wait()
+    def on_frame(task, msg):
+        manifest.append({"scene": msg["scene"], "frame": msg["frame"], "split": task["split"],
+                         "family": task["recipe"]["family"], "dir": frame_dir_name(msg["scene"], msg["frame"]),
+                         "files": msg["files"]})
+        bar.update(1)
 
-    if todo:
-        with ThreadPoolExecutor(workers) as pool:
-            for f in [pool.submit(drive) for _ in range(workers)]:
-                f.result()
-    bar.close()
+    new_worker = pool.new_worker if pool else WorkerProcess
+    try:
+        if todo:
+            with ThreadPoolExecutor(workers) as threads_pool:
+                for f in [threads_pool.submit(_drive, q, new_worker, on_frame, errors, pool is not None)
+                          for _ in range(workers)]:
+                    f.result()
+    finally:
+        bar.close()
     if errors:
         for e in errors:
+            if isinstance(e, WorkerFailed):
+                with open(out / "worker_errors.log", "a") as log:
+                    log.write(e.trace + "\n")
+                e = f"{e.message} (trace in {out / 'worker_errors.log'})"
             print(f"generate: {e}", file=sys.stderr)
         return 1
     from ..qa.contact_sheet import make_sheets
