@@ -4,7 +4,9 @@ Per rig camera: `cam_<name>.exr` with R, G, B (half, linear scene light), `dista
 along the ray), `semantic` and `instance` (uint32), `position.X/Y/Z` (float32, world frame);
 `cam_<name>.png`, 8-bit sRGB as Blender's view transform shows it.
 Top-down: `topdown.exr` with `all.*` (first hit from above) and `ground.*` (overhead occluders
-hidden), each `semantic`, `instance` (uint32) and `height` (float32, ego-frame z of the hit).
+hidden), each `semantic`, `instance` (uint32) and `height` (float32, ego-frame z of the hit), one
+pixel per label cell: rendered `supersample` times finer and reduced to coverage labels
+(dataset_tools.labels.coverage).
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ import numpy as np
 from dataset_tools.format.exr import read_exr, write_exr, write_png_atomic
 from dataset_tools.format.layout import FrameFiles
 from dataset_tools.format.reader import read_png
+from dataset_tools.labels.coverage import reduce_supersampled
 
 from .camera import use_camera
 
@@ -149,27 +152,40 @@ def render_fisheye(scene, camera, width, height, out_dir: Path, name: str, tmpdi
     clock["write"] = clock.get("write", 0.0) + time.perf_counter() - t0
 
 
-def render_topdown(scene, camera, size: int, occluders, world_to_ego: np.ndarray, tmpdir: Path) -> dict:
+def render_topdown(scene, camera, size: int, occluders, world_to_ego: np.ndarray, tmpdir: Path,
+                   supersample: int = 1, marking_share: float = 0.25) -> dict:
     """Two label renders from above: everything, then with the overhead occluders hidden from
-    camera rays (hidden, not removed: see label_mode)."""
+    camera rays (hidden, not removed: see label_mode). Each is rendered `supersample` times finer
+    with one sample at every sub-pixel's centre (a 0.01 px box filter) and reduced to coverage
+    labels, `marking_share` of a cell's sub-samples making it paint."""
     out = {}
-    for group, hide in (("all", False), ("ground", True)):
+    n = int(supersample)
+    saved = {"width": camera["width"], "height": camera["height"]}
+    filt = {k: getattr(scene.cycles, k) for k in ("pixel_filter_type", "filter_width")}
+    camera["width"], camera["height"] = saved["width"] * n, saved["height"] * n
+    set_cycles(scene, pixel_filter_type="BOX", filter_width=0.01)
+    try:
+        for group, hide in (("all", False), ("ground", True)):
+            for obj in occluders:
+                obj.visible_camera = not hide
+            p = _render_to_exr(scene, camera, size * n, size * n, tmpdir, f"topdown_{group}")
+            pos = np.stack([p["Position.X"], p["Position.Y"], p["Position.Z"]], -1).astype(np.float64)
+            z = pos @ world_to_ego[2, :3] + world_to_ego[2, 3]
+            sem, inst, height = reduce_supersampled(
+                np.rint(p["IndexMA.X"]).astype(np.uint32), np.rint(p["IndexOB.X"]).astype(np.uint32),
+                np.where(p["Depth.Z"] < BACKGROUND_DEPTH, z, 0.0).astype(np.float32), n, marking_share)
+            out[f"{group}.semantic"], out[f"{group}.instance"], out[f"{group}.height"] = sem, inst, height
+    finally:
         for obj in occluders:
-            obj.visible_camera = not hide
-        p = _render_to_exr(scene, camera, size, size, tmpdir, f"topdown_{group}")
-        pos = np.stack([p["Position.X"], p["Position.Y"], p["Position.Z"]], -1).astype(np.float64)
-        z = pos @ world_to_ego[2, :3] + world_to_ego[2, 3]
-        inst = np.rint(p["IndexOB.X"]).astype(np.uint32)
-        out[f"{group}.semantic"] = np.rint(p["IndexMA.X"]).astype(np.uint32)
-        out[f"{group}.instance"] = inst
-        out[f"{group}.height"] = np.where(p["Depth.Z"] < BACKGROUND_DEPTH, z, 0.0).astype(np.float32)
-    for obj in occluders:
-        obj.visible_camera = True
+            obj.visible_camera = True
+        camera["width"], camera["height"] = saved["width"], saved["height"]
+        set_cycles(scene, **filt)
     return out
 
 
 def render_frame(built, frame_dir: Path, fisheye_sizes: dict, topdown_size: int, render_cfg: dict,
-                 cycles_seed: int, tmpdir: Path, frame_meta: dict) -> dict:
+                 cycles_seed: int, tmpdir: Path, frame_meta: dict, supersample: int = 1,
+                 marking_share: float = 0.25) -> dict:
     """Render every pass of the posed frame into frame_dir; returns timings (s)."""
     scene = bpy.context.scene
     frame_dir.mkdir(parents=True, exist_ok=True)
@@ -181,7 +197,8 @@ def render_frame(built, frame_dir: Path, fisheye_sizes: dict, topdown_size: int,
         render_fisheye(scene, cam, w, h, frame_dir, name, tmpdir, clock)
     t1 = time.perf_counter()
     with label_mode(scene):
-        td = render_topdown(scene, built.topdown, topdown_size, built.occluders, frame_meta["world_to_ego"], tmpdir)
+        td = render_topdown(scene, built.topdown, topdown_size, built.occluders, frame_meta["world_to_ego"], tmpdir,
+                            supersample, marking_share)
     t2 = time.perf_counter()
     write_exr(FrameFiles(frame_dir).topdown, td)
     t3 = time.perf_counter()
