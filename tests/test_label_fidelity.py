@@ -121,6 +121,32 @@ def test_audit_agrees_with_the_analytic_shadow_and_catches_leaks(tmp_path, front
     assert bad["beyond_kernel_cells"] >= inner.sum() * 0.9
 
 
+def test_audit_command_writes_audit_json_and_validate_fails_on_threshold(tmp_path, front, grid, capsys):
+    import json
+
+    from dataset_tools.format.constructed import write_dataset
+    from dataset_tools.format.index import build_index, write_index
+    from dataset_tools.labels.fusion import write_labels
+    from dataset_tools.qa import audit, validate
+
+    root = write_dataset(tmp_path / "ds", front, grid, [("s", 0, "train", [KERB, *CARS])])
+    write_labels(root / "s/000000", fuse_frame(root / "s/000000"))
+    write_index(root, build_index(root))
+    assert validate.main([str(root), "--audit-threshold", "0.5"]) == 1  # no audit.json yet
+    assert "audit.json: missing" in capsys.readouterr().out
+    assert audit.main([str(root), "--no-progress", "--threshold", "0.5"]) == 0
+    a = json.loads((root / "audit.json").read_text())
+    assert set(a) >= {"frames", "rings", "overall", "threshold"} and a["threshold"] == 0.5
+    f = a["frames"]["s/000000"]
+    assert set(f["rings"]) == {"0-10", "10-20", "20-25"}
+    assert 0.0 < a["overall"]["visible_no_los"] < 0.05 and a["overall"]["beyond_kernel"] == 0.0
+    assert isinstance(f["visible_no_los"], float) and isinstance(f["los_invisible"], float)
+    assert audit.main([str(root), "--no-progress", "--threshold", "0"]) == 1
+    assert validate.main([str(root), "--audit-threshold", "0.5"]) == 0
+    assert validate.main([str(root), "--audit-threshold", "0"]) == 1
+    assert "have no line of sight" in capsys.readouterr().out
+
+
 def test_coverage_reduction():
     # 2 x 2 sub-samples: one of four paint marks the cell; vehicles by majority; ties to vehicle
     r, v, lm, crosswalk = CLASS_IDS["road"], CLASS_IDS["vehicle"], CLASS_IDS["lane_marking"], CLASS_IDS["crosswalk"]
