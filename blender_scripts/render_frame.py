@@ -154,31 +154,40 @@ def render_fisheye(scene, camera, width, height, out_dir: Path, name: str, tmpdi
 
 def render_topdown(scene, camera, size: int, occluders, world_to_ego: np.ndarray, tmpdir: Path,
                    supersample: int = 1, marking_share: float = 0.25) -> dict:
-    """Two label renders from above: everything, then with the overhead occluders hidden from
-    camera rays (hidden, not removed: see label_mode). Each is rendered `supersample` times finer
-    with one sample at every sub-pixel's centre (a 0.01 px box filter) and reduced to coverage
-    labels, `marking_share` of a cell's sub-samples making it paint."""
+    """Two label renders from above: everything ('all.*', one sample per cell), then with the
+    overhead occluders hidden from camera rays ('ground.*', hidden, not removed: see label_mode),
+    the one the labels come from: rendered `supersample` times finer and reduced to coverage
+    labels, `marking_share` of a cell's sub-samples making it paint. Every sample is at its
+    (sub-)pixel's centre (a 0.01 px box filter)."""
     out = {}
     n = int(supersample)
     saved = {"width": camera["width"], "height": camera["height"]}
     filt = {k: getattr(scene.cycles, k) for k in ("pixel_filter_type", "filter_width")}
-    camera["width"], camera["height"] = saved["width"] * n, saved["height"] * n
+    view_layer = scene.view_layers[0]
+    use_position = view_layer.use_pass_position
+    # the height comes from the depth (the camera looks straight down the ego's z axis): no position
+    # pass, a third less EXR to write and read at the supersampled size
+    view_layer.use_pass_position = False
     set_cycles(scene, pixel_filter_type="BOX", filter_width=0.01)
+    cam_z = float((np.asarray(world_to_ego) @ np.append(np.asarray(camera.matrix_world.translation), 1.0))[2])
     try:
         for group, hide in (("all", False), ("ground", True)):
             for obj in occluders:
                 obj.visible_camera = not hide
-            p = _render_to_exr(scene, camera, size * n, size * n, tmpdir, f"topdown_{group}")
-            pos = np.stack([p["Position.X"], p["Position.Y"], p["Position.Z"]], -1).astype(np.float64)
-            z = pos @ world_to_ego[2, :3] + world_to_ego[2, 3]
+            k = n if group == "ground" else 1
+            camera["width"], camera["height"] = saved["width"] * k, saved["height"] * k
+            p = _render_to_exr(scene, camera, size * k, size * k, tmpdir, f"topdown_{group}")
+            depth = p["Depth.Z"]
             sem, inst, height = reduce_supersampled(
                 np.rint(p["IndexMA.X"]).astype(np.uint32), np.rint(p["IndexOB.X"]).astype(np.uint32),
-                np.where(p["Depth.Z"] < BACKGROUND_DEPTH, z, 0.0).astype(np.float32), n, marking_share)
+                np.where(depth < BACKGROUND_DEPTH, cam_z - depth.astype(np.float64), 0.0).astype(np.float32), k,
+                marking_share)
             out[f"{group}.semantic"], out[f"{group}.instance"], out[f"{group}.height"] = sem, inst, height
     finally:
         for obj in occluders:
             obj.visible_camera = True
         camera["width"], camera["height"] = saved["width"], saved["height"]
+        view_layer.use_pass_position = use_position
         set_cycles(scene, **filt)
     return out
 
