@@ -1,6 +1,7 @@
 """Line-of-sight audit of the fused visibility labels.
 
-    python -m dataset_tools.audit <dataset> [--threshold 0.005] [--many 2.0] [--config cfg.yaml] [--json out.json]
+    python -m dataset_tools.audit <dataset> [--threshold 0.0005] [--metric unexplained] [--many 2.0]
+                                  [--no-pixels] [--config cfg.yaml] [--json out.json]
 
 Independent of the fisheye passes: from each camera centre (meta.json's rig) a radial sweep over
 the frame's top-down height map ('ground.height', overhead occluders hidden; the ego's own box left
@@ -14,12 +15,16 @@ any of its cells has one (its label is per vehicle). Reported per frame and per 
   beyond_kernel   share of the visible cells with no line of sight that are farther than the p(o)
                   kernel radius plus half a cell diagonal from every cell with one (what the
                   kernel and grid discreteness cannot explain)
+  unexplained     of those, the share with no camera pixel at all within the kernel radius (a
+                  pixel there saw the ground where the 2.5D height map cannot: under a vehicle's
+                  body, through a gap): visibility that only the spreading can have made, the
+                  label errors. Needs the camera passes (--no-pixels leaves it out)
   los_invisible   share of the ground cells with a line of sight and many expected camera pixels
                   (the pixel footprints of the cameras that see the cell, summed over the p(o)
                   kernel, >= --many * tau) that are labelled invisible (p(o) < 0.5)
 
-The result goes to <dataset>/audit.json (atomically); exit 1 when the overall visible_no_los is
-above --threshold.
+The result goes to <dataset>/audit.json (atomically); exit 1 when the overall --metric (default
+unexplained) is above --threshold (default 0.0005 of the visible cells).
 """
 
 from __future__ import annotations
@@ -30,14 +35,17 @@ from pathlib import Path
 
 import numpy as np
 
+from common.errors import InputError
 from common.files import write_json_atomic
 
 from ..format.layout import AUDIT
 from ..format.reader import DatasetIndex, read_labels, read_meta
 from ..labels import visibility as V
-from ..labels.fusion import FusionConfig, effective_tau, ego_box, ego_mask, frame_grid, frame_rig, read_topdown
+from ..labels.fusion import (FusionConfig, effective_tau, ego_box, ego_mask, frame_grid, frame_rig, load_frame_passes,
+                              read_topdown)
 
 RINGS = (("0-10", 0.0, 10.0), ("10-20", 10.0, 20.0), ("20-25", 20.0, math.inf))
+THRESHOLD = 0.0005
 VISIBLE = 0.5
 N_AZIMUTH = 4096
 Z_EPS = 0.02  # metres a surface may lie below the lowest seen height and still count as seen
@@ -113,8 +121,22 @@ def ring_masks(grid) -> dict:
     return {name: (cheb >= lo) & (cheb < hi) for name, lo, hi in RINGS}
 
 
-def audit_labels(grid, rig, topdown: dict, visibility: np.ndarray, box, cfg: FusionConfig, many: float = 2.0) -> dict:
-    """The audit of one frame's labels (see the module doc) from its top-down passes and rig."""
+def pixel_points(rig, cameras: dict, grid, cfg: FusionConfig) -> np.ndarray:
+    """(rows, cols) count of the cameras' ground and vehicle pixels on each cell, each at its own
+    point (no spreading)."""
+    lut = cfg.group_lut()
+    total = np.zeros(grid.shape, np.float32)
+    for name, table in V.ray_tables(rig).items():
+        p = cameras[name]
+        xy, _, _, _ = V.lift(table, p["distance"], lut[np.clip(p["semantic"], 0, len(lut) - 1)])
+        total += V.count_points(grid, xy)
+    return total
+
+
+def audit_labels(grid, rig, topdown: dict, visibility: np.ndarray, box, cfg: FusionConfig, many: float = 2.0,
+                 pixels: np.ndarray | None = None) -> dict:
+    """The audit of one frame's labels (see the module doc) from its top-down passes and rig;
+    pixels: pixel_points of the frame, for 'unexplained' (None: not reported)."""
     top = topdown["height"].astype(np.float32)
     ego = ego_mask(grid, box)
     ego_grown = ego_mask(grid, (box[0] - 0.2, box[1] + 0.2, box[2] - 0.2, box[3] + 0.2))
@@ -141,11 +163,16 @@ def audit_labels(grid, rig, topdown: dict, visibility: np.ndarray, box, cfg: Fus
     near_los = V.kernel_sum(los.astype(np.float32), cfg.kernel_radius_m / grid.res + math.sqrt(0.5)) > 0
     expect = los & many_px & ground & ~ego
     missed = expect & (visibility < VISIBLE)
+    radius = cfg.kernel_radius_m / grid.res
+    near_px = np.ones(grid.shape, bool) if pixels is None else V.kernel_sum(pixels, radius) > 0
+    unexplained = hidden & ~near_los & ~near_px
 
     def shares(m):
         return {
             "visible_no_los": _share(hidden & m, visible & m),
             "beyond_kernel": _share(hidden & ~near_los & m, visible & m),
+            "unexplained": _share(unexplained & m, visible & m) if pixels is not None else None,
+            "unexplained_cells": int((unexplained & m).sum()),
             "los_invisible": _share(missed & m, expect & m),
             "visible_cells": int((visible & m).sum()), "visible_no_los_cells": int((hidden & m).sum()),
             "beyond_kernel_cells": int((hidden & ~near_los & m).sum()),
@@ -154,7 +181,7 @@ def audit_labels(grid, rig, topdown: dict, visibility: np.ndarray, box, cfg: Fus
 
     out = shares(np.ones(grid.shape, bool))
     out["rings"] = {name: shares(m) for name, m in ring_masks(grid).items()}
-    out["_masks"] = {"hidden": hidden, "missed": missed, "los": los}
+    out["_masks"] = {"hidden": hidden, "missed": missed, "los": los, "unexplained": unexplained}
     return out
 
 
@@ -163,44 +190,56 @@ def _share(num: np.ndarray, den: np.ndarray) -> float:
     return float(num.sum() / d) if d else 0.0
 
 
-def audit_frame(frame_dir, cfg: FusionConfig | None = None, many: float = 2.0) -> dict:
-    """audit_labels of one fused frame on disk."""
+def audit_frame(frame_dir, cfg: FusionConfig | None = None, many: float = 2.0, pixels: bool = True) -> dict:
+    """audit_labels of one fused frame on disk (pixels: also read the camera passes for 'unexplained')."""
     cfg = cfg or FusionConfig()
     meta = read_meta(frame_dir)
-    rig = frame_rig(meta, frame_dir)
     grid = frame_grid(meta, frame_dir)
+    if pixels:
+        meta, rig, cameras, topdown = load_frame_passes(frame_dir)
+        points = pixel_points(rig, cameras, grid, cfg)
+    else:
+        rig, topdown, points = frame_rig(meta, frame_dir), read_topdown(frame_dir), None
     labels = read_labels(frame_dir)
-    return audit_labels(grid, rig, read_topdown(frame_dir), labels["visibility"], ego_box(meta, cfg), cfg, many)
+    return audit_labels(grid, rig, topdown, labels["visibility"], ego_box(meta, cfg), cfg, many, points)
 
 
-_COUNTS = ("visible_cells", "visible_no_los_cells", "beyond_kernel_cells", "los_many_cells", "los_invisible_cells")
+_COUNTS = ("visible_cells", "visible_no_los_cells", "beyond_kernel_cells", "unexplained_cells", "los_many_cells",
+           "los_invisible_cells")
+METRICS = ("visible_no_los", "beyond_kernel", "unexplained")
 
 
-def _pooled(parts: list[dict]) -> dict:
+def _pooled(parts: list[dict], pixels: bool) -> dict:
     n = {k: sum(p[k] for p in parts) for k in _COUNTS}
+    vis = n["visible_cells"]
     return {
-        "visible_no_los": n["visible_no_los_cells"] / n["visible_cells"] if n["visible_cells"] else 0.0,
-        "beyond_kernel": n["beyond_kernel_cells"] / n["visible_cells"] if n["visible_cells"] else 0.0,
+        "visible_no_los": n["visible_no_los_cells"] / vis if vis else 0.0,
+        "beyond_kernel": n["beyond_kernel_cells"] / vis if vis else 0.0,
+        "unexplained": (n["unexplained_cells"] / vis if vis else 0.0) if pixels else None,
         "los_invisible": n["los_invisible_cells"] / n["los_many_cells"] if n["los_many_cells"] else 0.0,
         **n,
     }
 
 
-def audit_dataset(root, cfg: FusionConfig | None = None, threshold: float = 0.005, many: float = 2.0,
-                  progress: bool = True) -> dict:
+def audit_dataset(root, cfg: FusionConfig | None = None, threshold: float = THRESHOLD, many: float = 2.0,
+                  metric: str = "unexplained", pixels: bool = True, progress: bool = True) -> dict:
     """Audit every frame of a fused data set; returns the audit.json document."""
     from tqdm import tqdm
 
+    if metric == "unexplained" and not pixels:
+        raise InputError("audit: --metric unexplained needs the camera passes (drop --no-pixels)")
     cfg = cfg or FusionConfig()
     idx = DatasetIndex(root)
     frames = {}
     for ref in tqdm(idx.all_frames(), desc="audit", unit="frame", disable=not progress):
-        r = audit_frame(ref.dir, cfg, many)
+        r = audit_frame(ref.dir, cfg, many, pixels)
         r.pop("_masks")
         frames[ref.name] = r
-    rings = {name: _pooled([f["rings"][name] for f in frames.values()]) for name, _, _ in RINGS}
-    return {"frames": frames, "rings": rings, "overall": _pooled(list(frames.values())),
-            "threshold": float(threshold), "many": float(many), "ring_distance": "max(|x|, |y|) from the ego origin, m"}
+    rings = {name: _pooled([f["rings"][name] for f in frames.values()], pixels) for name, _, _ in RINGS}
+    overall = _pooled(list(frames.values()), pixels)
+    return {"frames": frames, "rings": rings, "overall": overall, "metric": metric, "threshold": float(threshold),
+            "passed": overall[metric] <= threshold, "many": float(many),
+            "ring_distance": "max(|x|, |y|) from the ego origin, m"}
 
 
 def read_audit(root) -> dict:
@@ -216,10 +255,11 @@ def read_audit(root) -> dict:
 
 
 def format_report(r: dict) -> str:
-    lines = [f"{'ring':<8} {'visible':>8} {'no LoS':>8} {'beyond k':>9} {'LoS+many':>9} {'invisible':>9}"]
+    pct = lambda v: "-" if v is None else f"{v:.4%}"  # noqa: E731
+    lines = [f"{'ring':<8} {'visible':>8} {'no LoS':>8} {'beyond k':>9} {'unexpl.':>9} {'LoS+many':>9} {'invisible':>9}"]
     for name, v in [*r["rings"].items(), ("all", r["overall"])]:
-        lines.append(f"{name:<8} {v['visible_cells']:>8} {v['visible_no_los']:>8.4%} {v['beyond_kernel']:>9.4%} "
-                     f"{v['los_many_cells']:>9} {v['los_invisible']:>9.4%}")
+        lines.append(f"{name:<8} {v['visible_cells']:>8} {pct(v['visible_no_los']):>8} {pct(v['beyond_kernel']):>9} "
+                     f"{pct(v['unexplained']):>9} {v['los_many_cells']:>9} {pct(v['los_invisible']):>9}")
     worst = sorted(r["frames"].items(), key=lambda kv: -kv[1]["visible_no_los"])[:5]
     lines.append("worst frames (visible, no line of sight): " + ", ".join(f"{n} {f['visible_no_los']:.3%}" for n, f in worst))
     return "\n".join(lines)
@@ -229,20 +269,23 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python -m dataset_tools.audit",
                                  description="Line-of-sight audit of the visibility labels; writes <dataset>/audit.json.")
     ap.add_argument("dataset")
-    ap.add_argument("--threshold", type=float, default=0.005,
-                    help="exit 1 when the overall share of visible cells with no line of sight is above (default 0.005)")
+    ap.add_argument("--threshold", type=float, default=THRESHOLD,
+                    help=f"exit 1 when the overall METRIC is above this share of the visible cells (default {THRESHOLD})")
+    ap.add_argument("--metric", choices=METRICS, default="unexplained",
+                    help="what --threshold limits (default unexplained; see the module doc)")
+    ap.add_argument("--no-pixels", action="store_true", help="do not read the camera passes (no 'unexplained')")
     ap.add_argument("--many", type=float, default=2.0, help="'many pixels': expected kernel pixels >= MANY * tau (default 2)")
     ap.add_argument("--config", help="dataset config whose labels: section the data set was fused with (tau, kernel)")
     ap.add_argument("--json", help="also write the report here")
     ap.add_argument("--no-progress", action="store_true")
     args = ap.parse_args(argv)
     cfg = FusionConfig.load(args.config) if args.config else FusionConfig()
-    r = audit_dataset(args.dataset, cfg, args.threshold, args.many, progress=not args.no_progress)
+    r = audit_dataset(args.dataset, cfg, args.threshold, args.many, args.metric, not args.no_pixels,
+                      progress=not args.no_progress)
     write_json_atomic(Path(args.dataset) / AUDIT, r)
     if args.json:
         write_json_atomic(Path(args.json), r)
     print(format_report(r))
-    over = r["overall"]["visible_no_los"] > args.threshold
-    print(f"{'FAIL' if over else 'ok'}: visible with no line of sight {r['overall']['visible_no_los']:.4%} "
+    print(f"{'ok' if r['passed'] else 'FAIL'}: {args.metric} {r['overall'][args.metric]:.4%} of the visible cells "
           f"(threshold {args.threshold:.4%}); written {Path(args.dataset) / AUDIT}")
-    return 1 if over else 0
+    return 0 if r["passed"] else 1

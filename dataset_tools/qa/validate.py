@@ -5,7 +5,8 @@ manifest (and index) consistent.
 
 Prints one line per problem, naming the file and what is wrong, and exits 1 when there are any.
 --audit-threshold also reads <dataset>/audit.json (python -m dataset_tools.audit) and fails the data
-set when its overall share of visible cells with no line of sight is above the threshold.
+set when its overall share (of the metric the audit ran with, default 'unexplained': visible cells
+with no line of sight and no camera pixel near) is above the threshold.
 """
 
 from __future__ import annotations
@@ -155,21 +156,22 @@ def check_frame(frame_dir: Path, problems: list, labels: bool = True, n_classes:
 
 
 def check_audit(root: Path, threshold: float, problems: list) -> None:
-    """The line-of-sight audit's overall visible-with-no-line-of-sight share within `threshold`."""
+    """The line-of-sight audit's overall metric (the one audit.json was checked with) within `threshold`."""
     from .audit import read_audit
 
     try:
         a = read_audit(root)
-        share = float(a["overall"]["visible_no_los"])
+        metric = str(a.get("metric", "visible_no_los"))
+        share = float(a["overall"][metric])
     except DatasetError as exc:
         problems.append(str(exc))
         return
-    except (KeyError, TypeError, ValueError):
-        problems.append(f"{root / AUDIT}: no overall.visible_no_los (rerun python -m dataset_tools.audit)")
+    except (AttributeError, KeyError, TypeError, ValueError):
+        problems.append(f"{root / AUDIT}: no overall share to check (rerun python -m dataset_tools.audit {root})")
         return
     if share > threshold:
-        problems.append(f"{root / AUDIT}: {share:.4%} of the visible cells have no line of sight to any camera "
-                        f"(threshold {threshold:.4%})")
+        problems.append(f"{root / AUDIT}: {metric} {share:.4%} of the visible cells have no line of sight to any "
+                        f"camera (threshold {threshold:.4%})")
 
 
 def validate(root, labels: bool = True, progress: bool = True, audit_threshold: float | None = None) -> list[str]:
@@ -199,8 +201,8 @@ def main(argv=None) -> int:
     ap.add_argument("dataset")
     ap.add_argument("--no-labels", action="store_true", help="renders only (before fusion)")
     ap.add_argument("--audit-threshold", type=float, metavar="SHARE",
-                    help="fail when audit.json (python -m dataset_tools.audit) has more than this share of visible "
-                         "cells with no line of sight")
+                    help="fail when audit.json (python -m dataset_tools.audit) has more than this share of "
+                         "visible cells with no line of sight (its metric, default 'unexplained')")
     args = ap.parse_args(argv)
     problems = validate(args.dataset, labels=not args.no_labels, audit_threshold=args.audit_threshold)
     for p in problems:
