@@ -14,6 +14,7 @@ from dataset_tools.format.reader import read_meta
 from dataset_tools.labels.classes import CLASS_IDS
 from dataset_tools.labels.coverage import reduce_supersampled
 from dataset_tools.labels.fusion import FusionConfig, effective_min_pixels, effective_tau, fuse_frame, read_topdown
+from dataset_tools.qa.audit import audit_labels
 from geometry.bev import BevGrid
 from geometry.rig import Rig, load_rig
 
@@ -76,8 +77,6 @@ def deep(mask: np.ndarray, cells: float) -> np.ndarray:
 
 def shadow_checks(frame_dir, rig, grid, boxes):
     """Fuse, audit and compare with the analytic shadow; returns (visibility, shadow, deep shadow, audit)."""
-    from dataset_tools.qa.audit import audit_labels
-
     cfg = FusionConfig()
     vis = fuse_frame(frame_dir, cfg)["visibility"]
     shadow = analytic_shadow(grid, rig, boxes)
@@ -116,8 +115,7 @@ def test_audit_agrees_with_the_analytic_shadow_and_catches_leaks(tmp_path, front
     assert los[lit].mean() > 0.99
     leaked = vis.copy()
     leaked[inner] = 0.8  # what the old spreading did behind kerbs
-    bad = __import__("dataset_tools.qa.audit", fromlist=["x"]).audit_labels(
-        grid, front, read_topdown(d), leaked, (-1.1, 3.85, -1.0, 1.0), FusionConfig())
+    bad = audit_labels(grid, front, read_topdown(d), leaked, (-1.1, 3.85, -1.0, 1.0), FusionConfig())
     assert bad["beyond_kernel_cells"] >= inner.sum() * 0.9
 
 
