@@ -18,7 +18,7 @@ from pathlib import Path
 
 from common.files import write_text_atomic
 
-MODULES = ["bench.geometry", "bench.scenes", "bench.fusion", "bench.model", "bench.report", "bench.ray_backend"]
+MODULES = ["bench.geometry", "bench.scenes", "bench.topdown", "bench.fusion", "bench.model", "bench.report", "bench.ray_backend"]
 OUT = Path("bench/out")
 
 

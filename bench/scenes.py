@@ -1,5 +1,5 @@
 """Bench: seconds per frame of the `small` preset, split into fisheye renders, top-down renders
-and writing. Renders a few frames of two small-preset scenes with one worker using every core.
+(supersampled coverage labels, topdown.supersample per axis) and writing. Renders a few frames of two small-preset scenes with one worker using every core.
 
     from bench.scenes import run; run()  ->  {"fisheye_s_per_frame": ..., ...}
 """
@@ -38,6 +38,7 @@ def run(frames: int = FRAMES, scenes=SCENES) -> dict:
     mean = lambda rows, k: float(np.mean([r[k] for r in rows])) if rows else float("nan")  # noqa: E731
     return {
         "preset": "small",
+        "topdown_supersample": cfg["topdown"]["supersample"],
         "scenes": list(scenes),
         "frames": len(metas),
         "fisheye_s_per_frame": mean(steady, "fisheye_s"),

@@ -135,7 +135,7 @@ class Road:
         if self.median == "barrier":
             bar = MeshData()
             for a, b in solid:
-                bar.ribbon(Path(self.path.sub(a, b)), 0.3, -0.3, 0.9, "concrete", depth=0.9)
+                bar.ribbon(Path(self.path.sub(a, b)), 0.3, -0.3, 0.9, "barrier_concrete", depth=0.9)
             layout.add(name + "_barrier", bar)
 
     def lanes(self, layout: Layout, speeds, s_end=None):

@@ -31,6 +31,7 @@ MATERIAL_CLASSES = {
     "lamp": "pole",
     "bridge": "bridge",
     "concrete": "pillar",
+    "barrier_concrete": "barrier",
     "car_paint": "vehicle",
     "car_glass": "vehicle",
     "cargo": "vehicle",
@@ -182,6 +183,7 @@ def build_materials(weather: dict) -> dict[str, bpy.types.Material]:
         _emission(b, (1.0, 0.85, 0.6), 30.0)
     make("bridge", (0.45, 0.44, 0.42), rough=0.85)
     make("concrete", (0.5, 0.49, 0.47), rough=0.85)
+    make("barrier_concrete", (0.5, 0.49, 0.47), rough=0.85)  # looks like the pillars, labelled barrier
     m, b = make("car_paint", (0.5, 0.5, 0.5), rough=0.25, metallic=0.4)
     _object_color(m, b)
     make("car_glass", (0.02, 0.025, 0.03), rough=0.05, spec=1.0)

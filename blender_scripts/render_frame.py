@@ -5,7 +5,9 @@ along the ray), `semantic` and `instance` (uint32), `position.X/Y/Z` (float32, w
 `cam_<name>.png`, 8-bit sRGB as Blender's view transform shows it. With the ego car's body in the
 scene: `ego` (half, 1 where the camera sees the ego body) and `cam_<name>_ego.png` (255 there).
 Top-down: `topdown.exr` with `all.*` (first hit from above) and `ground.*` (overhead occluders
-hidden), each `semantic`, `instance` (uint32) and `height` (float32, ego-frame z of the hit).
+hidden), each `semantic`, `instance` (uint32) and `height` (float32, ego-frame z of the hit), one
+pixel per label cell: rendered `supersample` times finer and reduced to coverage labels
+(dataset_tools.labels.coverage).
 """
 
 from __future__ import annotations
@@ -21,6 +23,7 @@ from dataset_tools.format.exr import read_exr, write_exr, write_png_atomic
 from dataset_tools.format.layout import FrameFiles
 from dataset_tools.labels.classes import CLASS_IDS
 from dataset_tools.format.reader import read_png
+from dataset_tools.labels.coverage import reduce_supersampled
 
 from .camera import use_camera
 
@@ -159,30 +162,51 @@ def render_fisheye(scene, camera, width, height, out_dir: Path, name: str, tmpdi
 
 
 def render_topdown(scene, camera, size: int, occluders, world_to_ego: np.ndarray, tmpdir: Path,
-                   ego_body=()) -> dict:
-    """Two label renders from above: everything, then with the overhead occluders hidden from
-    camera rays (hidden, not removed: see label_mode). The ego car's body is hidden from both: the
-    labels under it are the ground (the fusion marks its footprint invalid)."""
+                   supersample: int = 1, marking_share: float = 0.25, ego_body=()) -> dict:
+    """Two label renders from above: everything ('all.*', one sample per cell), then with the
+    overhead occluders hidden from camera rays ('ground.*', hidden, not removed: see label_mode),
+    the one the labels come from: rendered `supersample` times finer and reduced to coverage
+    labels, `marking_share` of a cell's sub-samples making it paint. Every sample is at its
+    (sub-)pixel's centre (a 0.01 px box filter). The ego car's body is hidden from both: the labels under it are the
+    ground (the fusion marks its footprint invalid)."""
     out = {}
-    for obj in ego_body:
-        obj.visible_camera = False
-    for group, hide in (("all", False), ("ground", True)):
-        for obj in occluders:
-            obj.visible_camera = not hide
-        p = _render_to_exr(scene, camera, size, size, tmpdir, f"topdown_{group}")
-        pos = np.stack([p["Position.X"], p["Position.Y"], p["Position.Z"]], -1).astype(np.float64)
-        z = pos @ world_to_ego[2, :3] + world_to_ego[2, 3]
-        inst = np.rint(p["IndexOB.X"]).astype(np.uint32)
-        out[f"{group}.semantic"] = np.rint(p["IndexMA.X"]).astype(np.uint32)
-        out[f"{group}.instance"] = inst
-        out[f"{group}.height"] = np.where(p["Depth.Z"] < BACKGROUND_DEPTH, z, 0.0).astype(np.float32)
-    for obj in [*occluders, *ego_body]:
-        obj.visible_camera = True
+    n = int(supersample)
+    saved = {"width": camera["width"], "height": camera["height"]}
+    filt = {k: getattr(scene.cycles, k) for k in ("pixel_filter_type", "filter_width")}
+    view_layer = scene.view_layers[0]
+    use_position = view_layer.use_pass_position
+    # the height comes from the depth (the camera looks straight down the ego's z axis): no position
+    # pass, a third less EXR to write and read at the supersampled size
+    view_layer.use_pass_position = False
+    set_cycles(scene, pixel_filter_type="BOX", filter_width=0.01)
+    cam_z = float((np.asarray(world_to_ego) @ np.append(np.asarray(camera.matrix_world.translation), 1.0))[2])
+    try:
+        for obj in ego_body:
+            obj.visible_camera = False
+        for group, hide in (("all", False), ("ground", True)):
+            for obj in occluders:
+                obj.visible_camera = not hide
+            k = n if group == "ground" else 1
+            camera["width"], camera["height"] = saved["width"] * k, saved["height"] * k
+            p = _render_to_exr(scene, camera, size * k, size * k, tmpdir, f"topdown_{group}")
+            depth = p["Depth.Z"]
+            sem, inst, height = reduce_supersampled(
+                np.rint(p["IndexMA.X"]).astype(np.uint32), np.rint(p["IndexOB.X"]).astype(np.uint32),
+                np.where(depth < BACKGROUND_DEPTH, cam_z - depth.astype(np.float64), 0.0).astype(np.float32), k,
+                marking_share)
+            out[f"{group}.semantic"], out[f"{group}.instance"], out[f"{group}.height"] = sem, inst, height
+    finally:
+        for obj in [*occluders, *ego_body]:
+            obj.visible_camera = True
+        camera["width"], camera["height"] = saved["width"], saved["height"]
+        view_layer.use_pass_position = use_position
+        set_cycles(scene, **filt)
     return out
 
 
 def render_frame(built, frame_dir: Path, fisheye_sizes: dict, topdown_size: int, render_cfg: dict,
-                 cycles_seed: int, tmpdir: Path, frame_meta: dict) -> dict:
+                 cycles_seed: int, tmpdir: Path, frame_meta: dict, supersample: int = 1,
+                 marking_share: float = 0.25) -> dict:
     """Render every pass of the posed frame into frame_dir; returns timings (s)."""
     scene = bpy.context.scene
     frame_dir.mkdir(parents=True, exist_ok=True)
@@ -195,7 +219,7 @@ def render_frame(built, frame_dir: Path, fisheye_sizes: dict, topdown_size: int,
     t1 = time.perf_counter()
     with label_mode(scene):
         td = render_topdown(scene, built.topdown, topdown_size, built.occluders, frame_meta["world_to_ego"], tmpdir,
-                            built.ego_body)
+                            supersample, marking_share, built.ego_body)
     t2 = time.perf_counter()
     write_exr(FrameFiles(frame_dir).topdown, td)
     t3 = time.perf_counter()

@@ -71,8 +71,9 @@ def run_task(task: dict, state: dict) -> None:
         frame_dir = Path(task["out"]) / frame_dir_name(task["scene"], frame)
         fm = set_frame(built, frame)
         seed = frame_seed(recipe["seed"], frame)
-        timings = render_frame(built, frame_dir, sizes, task["topdown"]["size"], task["render"], seed,
-                               Path(state["tmp"]), fm)
+        td = task["topdown"]
+        timings = render_frame(built, frame_dir, sizes, td["size"], task["render"], seed, Path(state["tmp"]), fm,
+                               td.get("supersample", 1), td.get("marking_share", 0.25))
         w = built.weather
         meta = {
             "scene": task["scene"], "frame": frame, "split": task["split"], "family": recipe["family"],
@@ -89,7 +90,8 @@ def run_task(task: dict, state: dict) -> None:
             "ego": built.ego_meta,
             "camera_method": task["render"].get("camera_method", "osl"),
             "fit_errors_px": built.fit_errors,
-            "topdown": {"grid": state["grid"].to_dict(), "height_m": task["topdown"]["height_m"]},
+            "topdown": {"grid": state["grid"].to_dict(), "height_m": td["height_m"],
+                        "supersample": td.get("supersample", 1), "marking_share": td.get("marking_share", 0.25)},
             "render": task["render"],
             "recipe": recipe,
         }

@@ -229,11 +229,22 @@ def test_topdown_occluders_differ_exactly_under_canopy_and_bridge(scene_tiny_run
         under = np.isin(td["all.semantic"], occ)
         seen |= set(np.unique(td["all.semantic"][under]).tolist())
         assert not np.isin(td["ground.semantic"], occ).any(), key
-        for ch in ("semantic", "instance", "height"):
-            a, g = td[f"all.{ch}"], td[f"ground.{ch}"]
-            assert np.array_equal(a[~under], g[~under]), (key, ch)
+        # 'ground.*' holds coverage labels (2 x 2 sub-samples per cell), 'all.*' one sample per cell:
+        # outside the occluders they agree exactly except next to an edge of the one-sample pass
+        # or the grid (the sub-samples reach across it) and where paint thinner than a cell was caught
+        inst = td["all.instance"].astype(np.int64)
+        k = np.ones((3, 3), np.uint8)
+        edge = cv2.dilate(inst.astype(np.float32), k) != cv2.erode(inst.astype(np.float32), k)
+        edge[[0, -1], :] = edge[:, [0, -1]] = True  # what lies beyond the grid is unknown
+        paint = np.isin(td["ground.semantic"], [CLASS_IDS[c] for c in ("lane_marking", "crosswalk", "stop_line")])
+        far = ~under & ~edge & ~paint
+        assert far.mean() > 0.3, key
+        for ch in ("semantic", "instance"):
+            assert np.array_equal(td[f"all.{ch}"][far], td[f"ground.{ch}"][far]), (key, ch)
+        flat = far & (td["all.semantic"] != CLASS_IDS["vehicle"])  # a car's height varies within a cell
+        np.testing.assert_allclose(td["all.height"][flat], td["ground.height"][flat], atol=0.05, err_msg=str(key))
         assert (td["all.semantic"][under] != td["ground.semantic"][under]).all()
-        assert (td["all.height"][under] > td["ground.height"][under]).all(), key
+        assert (td["all.height"][under & ~edge] > td["ground.height"][under & ~edge]).all(), key
     assert seen == set(occ.tolist()), "the tiny scenes must show both canopies and bridges from above"
 
 

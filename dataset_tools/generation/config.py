@@ -45,6 +45,10 @@ SCHEMA = Section({
         "size": Num(8, 8192, integer=True, default=400),
         "height_m": Num(above=0, hi=1000.0, default=60.0),
         "bound": Num(above=0, hi=500.0, default=25.0),
+        # label passes rendered this many times finer per axis and reduced to coverage labels
+        # (dataset_tools.labels.coverage); a cell is paint when paint covers marking_share of it
+        "supersample": Num(1, 8, integer=True, default=2),
+        "marking_share": Num(above=0, hi=1.0, default=0.25),
     }),
     "render": Section({
         "samples": Num(1, 65536, integer=True, default=4),

@@ -48,7 +48,12 @@ FUSION_SCHEMA = Section({
     # spread each pixel's weight along the surface to its neighbours in sub-points this far apart
     # (0: count each pixel at its own point only); see visibility.spread_counts
     "spread_step_m": Num(0.0, 10.0, default=0.25),
-    "min_vehicle_pixels": Num(1, 10**6, integer=True, default=20),  # k: pixels of a vehicle in one camera
+    # when two neighbouring pixels are on one seen surface (visibility.SurfaceRule)
+    "spread_z_tol_m": Num(0.0, 1.0, default=0.05),
+    "spread_max_grade": Num(0.0, 1.0, default=0.02),
+    "spread_min_grazing_deg": Num(above=0, hi=90.0, default=15.0),
+    # k: pixels of a vehicle in one camera at the reference resolution (scaled like tau)
+    "min_vehicle_pixels": Num(1, 10**6, integer=True, default=20),
     "class_map": Mapping(_FINE, Name(), default=dict(DEFAULT_CLASS_MAP)),
     "class_names": List(Name(), max_length=255, default=list(TRAIN_CLASSES)),
     "ground_classes": List(_FINE, default=list(GROUND_CLASSES)),
@@ -66,6 +71,9 @@ class FusionConfig:
     kernel_radius_m: float = 0.5
     reference_pixels: int | None = 480 * 302
     spread_step_m: float = 0.25
+    spread_z_tol_m: float = 0.05
+    spread_max_grade: float = 0.02
+    spread_min_grazing_deg: float = 15.0
     min_vehicle_pixels: int = 20
     class_map: dict = field(default_factory=lambda: dict(DEFAULT_CLASS_MAP))
     class_names: list = field(default_factory=lambda: list(TRAIN_CLASSES))
@@ -99,6 +107,9 @@ class FusionConfig:
 
     def fine_ids(self, names) -> np.ndarray:
         return np.array([CLASS_IDS[n] for n in names], np.int64)
+
+    def surface_rule(self) -> V.SurfaceRule:
+        return V.SurfaceRule(self.spread_z_tol_m, self.spread_max_grade, self.spread_min_grazing_deg)
 
     def group_lut(self) -> np.ndarray:
         """Fine class id -> 1 ground, 2 vehicle, 0 other (int8)."""
@@ -250,25 +261,41 @@ def ego_mask(grid, box) -> np.ndarray:
 # ---------------------------------------------------------------- fusion (pure)
 
 
-def effective_tau(cfg: FusionConfig, shapes) -> float:
-    """tau scaled by the cameras' mean pixel count (shapes: their (H, W)) over the reference: the
-    points per cell grow with the image size, p(o) should not."""
+def pixel_scale(cfg: FusionConfig, shapes) -> float:
+    """The cameras' mean pixel count (shapes: their (H, W)) over cfg.reference_pixels (1 when None)."""
     if not cfg.reference_pixels:
-        return float(cfg.tau)
-    mean_px = float(np.mean([h * w for h, w in shapes]))
-    return float(cfg.tau) * mean_px / float(cfg.reference_pixels)
+        return 1.0
+    return float(np.mean([h * w for h, w in shapes])) / float(cfg.reference_pixels)
 
 
-def camera_counts(table: V.RayTable, passes: dict, grid, cfg: FusionConfig):
+def effective_tau(cfg: FusionConfig, shapes) -> float:
+    """tau scaled by the cameras' mean pixel count over the reference: the points per cell grow
+    with the image size, p(o) should not."""
+    return float(cfg.tau) * pixel_scale(cfg, shapes)
+
+
+def effective_min_pixels(cfg: FusionConfig, shapes) -> int:
+    """k scaled like tau: the pixels a vehicle covers grow with the image size (at least 1)."""
+    return max(1, int(round(cfg.min_vehicle_pixels * pixel_scale(cfg, shapes))))
+
+
+PAINT_CLASSES = ("lane_marking", "crosswalk", "stop_line")
+
+
+def camera_counts(table: V.RayTable, passes: dict, grid, cfg: FusionConfig, min_pixels: int | None = None):
     """(rows, cols) pixel-occurrence counts of one camera's ground and vehicle hits, and the
-    vehicle instances it sees with at least cfg.min_vehicle_pixels pixels."""
+    vehicle instances it sees with at least min_pixels (default: cfg.min_vehicle_pixels) pixels."""
     lut = cfg.group_lut()
-    group = V.hits(table, passes["distance"], lut[np.clip(passes["semantic"], 0, len(lut) - 1)])
-    seen = V.seen_instances(passes["instance"], group == 2, cfg.min_vehicle_pixels)
-    xy = V.lift_xy(table, passes["distance"])
+    sem = np.clip(passes["semantic"], 0, len(lut) - 1)
+    group = V.hits(table, passes["distance"], lut[sem])
+    k = cfg.min_vehicle_pixels if min_pixels is None else min_pixels
+    seen = V.seen_instances(passes["instance"], group == 2, k)
+    points = V.lift_points(table, passes["distance"])
     if cfg.spread_step_m:
-        return V.spread_counts(grid, xy, passes["distance"], group, cfg.spread_step_m), seen
-    return V.count_points(grid, xy[group > 0]), seen
+        paint = np.isin(sem, cfg.fine_ids([c for c in PAINT_CLASSES if c in cfg.ground_classes]))
+        return V.spread_counts(grid, points, passes["distance"], group, passes["instance"], table.rays,
+                               cfg.spread_step_m, paint, cfg.surface_rule()), seen
+    return V.count_points(grid, points[..., :2][group > 0]), seen
 
 
 def fuse_passes(rig, cameras: dict, topdown: dict, grid, cfg: FusionConfig, box=DEFAULT_EGO_BOX) -> dict:
@@ -286,13 +313,15 @@ def fuse_passes(rig, cameras: dict, topdown: dict, grid, cfg: FusionConfig, box=
     fine = np.clip(topdown["semantic"], 0, len(lut) - 1)
     semantic = lut[fine]
     counts, seen = {}, []
+    shapes = [t.shape for t in tables.values()]
+    k = effective_min_pixels(cfg, shapes)
     for name, table in tables.items():
         if name not in cameras:
             raise ValueError(f"no passes for rig camera '{name}'")
-        counts[name], ids = camera_counts(table, cameras[name], grid, cfg)
+        counts[name], ids = camera_counts(table, cameras[name], grid, cfg, k)
         seen.append(ids)
     total = sum(counts.values())
-    vis = V.visibility_from_counts(total, grid.res, cfg.kernel_radius_m, effective_tau(cfg, [t.shape for t in tables.values()]))
+    vis = V.visibility_from_counts(total, grid.res, cfg.kernel_radius_m, effective_tau(cfg, shapes))
     is_vehicle = np.isin(fine, vehicle_ids)
     seen_ids = np.unique(np.concatenate(seen)) if seen else np.zeros(0, np.int64)
     vis[V.footprint_mask(topdown["instance"], seen_ids) & is_vehicle] = 1.0

@@ -2,8 +2,10 @@
 
 Each camera pixel's ray (from `geometry`, computed once per rig) times its rendered distance is a
 3D point in the ego frame. Points whose fine class is ground or vehicle are counted per BEV cell,
-the counts are summed over a circular kernel, divided by tau and clipped to [0, 1]. A vehicle seen
-by at least k pixels in any camera is visible over its whole top-down footprint.
+each pixel's weight is spread along the surface it lies on (spread_counts: never across an
+occlusion edge), the counts are summed over a circular kernel, divided by tau and clipped to
+[0, 1]. A vehicle seen by at least k pixels in any camera is visible over its whole top-down
+footprint. docs/label-fidelity.md derives the rules.
 """
 
 from __future__ import annotations
@@ -63,12 +65,6 @@ def hits(table: RayTable, distance: np.ndarray, group: np.ndarray | None = None)
     return np.where(ok, g, 0).astype(np.int8)
 
 
-def lift_xy(table: RayTable, distance: np.ndarray) -> np.ndarray:
-    """(H, W, 2) ego-frame (x, y) of every pixel's hit (meaningless where `hits` is 0)."""
-    d = np.where(table.valid & (distance < MAX_DISTANCE) & np.isfinite(distance), distance, 0).astype(np.float32)
-    return table.origin[:2] + table.rays[..., :2] * d[..., None]
-
-
 def lift(table: RayTable, distance: np.ndarray, group: np.ndarray | None = None):
     """Ego-frame (x, y) (M, 2) of the pixels that hit something, their flat pixel indices, ray
     distances and groups (M,)."""
@@ -92,26 +88,72 @@ def count_points(grid, xy: np.ndarray, weights: np.ndarray | None = None) -> np.
     return np.bincount(flat, w, minlength=grid.rows * grid.cols).reshape(grid.shape).astype(np.float32)
 
 
-def spread_counts(grid, xy: np.ndarray, distance: np.ndarray, group: np.ndarray, step: float,
-                  max_gap_ratio: float = 0.5, max_steps: int = 256) -> np.ndarray:
+@dataclass(frozen=True)
+class SurfaceRule:
+    """When two neighbouring pixels lie on one continuous, seen surface (see spread_counts).
+
+    Both hit the same object (instance id). Paint (lane markings, crosswalks, stop lines) is its
+    own object lying on the road, so a paint pixel also joins any ground pixel within z_tol of its
+    height. On the ground the second point must lie where the surface's slope puts it: heights
+    differ by at most z_tol + max_grade * horizontal gap. Ray b then meets the surface through
+    point a where the pixel footprint predicts, so the gap is the footprint; across a kerb (its
+    shadow starts 0.15 m up and ends on the road) it is not. On a vehicle the 3D gap may be at most
+    the footprint of a surface seen at min_grazing_deg or steeper:
+    distance * sin(angle between the two rays) / sin(min_grazing_deg) + z_tol."""
+
+    z_tol: float = 0.05
+    max_grade: float = 0.02
+    min_grazing_deg: float = 15.0
+
+
+def lift_points(table: RayTable, distance: np.ndarray) -> np.ndarray:
+    """(H, W, 3) ego-frame points of every pixel's hit (meaningless where `hits` is 0)."""
+    d = np.where(table.valid & (distance < MAX_DISTANCE) & np.isfinite(distance), distance, 0).astype(np.float32)
+    return table.origin + table.rays * d[..., None]
+
+
+def same_surface(pa, pb, ga, ia, ib, paint, ra, rb, da, rule: SurfaceRule) -> np.ndarray:
+    """Bool per neighbour pair (a, b), both of group ga (1 ground, 2 vehicle): on one seen surface
+    (SurfaceRule). pa, pb: (..., 3) points; ia, ib: instance ids; paint: a or b is paint;
+    ra, rb: (..., 3) unit rays; da: distance of a."""
+    d = pb - pa
+    dz = np.abs(d[..., 2])
+    hgap = np.sqrt(d[..., 0] ** 2 + d[..., 1] ** 2)
+    tol = np.float32(rule.z_tol)
+    ground = (ga == 1) & ((ia == ib) | (paint & (dz <= tol)))
+    ground &= dz <= tol + np.float32(rule.max_grade) * hgap
+    sin_rays = np.linalg.norm(np.cross(ra, rb), axis=-1)
+    footprint = da * sin_rays / np.float32(np.sin(np.radians(rule.min_grazing_deg))) + tol
+    vehicle = (ga == 2) & (ia == ib) & (np.sqrt(hgap * hgap + dz * dz) <= footprint)
+    return ground | vehicle
+
+
+def spread_counts(grid, points: np.ndarray, distance: np.ndarray, group: np.ndarray, instance: np.ndarray,
+                  rays: np.ndarray, step: float, paint: np.ndarray | None = None,
+                  rule: SurfaceRule = SurfaceRule(), max_steps: int = 256) -> np.ndarray:
     """(rows, cols) float32 counts of hit pixels, each pixel's unit weight spread along the surface
     towards its right and lower neighbours.
 
     Far from a camera one pixel row covers metres of ground (about 2 m at 20 m from a camera 0.6 m
     high), so counting each point in its one cell leaves stripes of empty cells between pixel rows.
     Here half of a pixel's weight goes, in sub-points at most `step` metres apart, along the segment
-    to its right neighbour and half along the one to its lower neighbour, when both pixels hit the
-    same kind of surface (same group) and the gap is under max_gap_ratio times the ray distance (a
-    depth edge is not bridged); otherwise that half stays on the pixel's point. The total weight is
-    the pixel count, so counts keep the paper's meaning of pixel occurrences.
+    to its right neighbour and half along the one to its lower neighbour, when both pixels lie on
+    one seen surface (`SurfaceRule`: same group, same object, and the gap that the surface's slope
+    and the pixel footprint predict: never across a kerb, a vehicle's edge or between two vehicles);
+    otherwise that half stays on the pixel's point. The total weight is the pixel count, so counts
+    keep the paper's meaning of pixel occurrences.
 
-    xy: (H, W, 2) lifted ego (x, y); distance: (H, W); group: (H, W) int8, 0 for pixels left out.
+    points: (H, W, 3) lifted ego points (lift_points); distance: (H, W) ray distances; group: (H, W)
+    int8, 0 for pixels left out, 1 ground, 2 vehicle; instance: (H, W) instance ids; rays: (H, W, 3)
+    unit rays (RayTable.rays); paint: (H, W) bool, pixels on paint (None: none).
     """
     h, w = group.shape
     # work in fractional cell coordinates: row = (x_max - x) / res, col = (y_max - y) / res
     rc = np.empty((2, h, w), np.float32)
-    rc[0] = (np.float32(grid.x_max) - xy[..., 0]) / np.float32(grid.res)
-    rc[1] = (np.float32(grid.y_max) - xy[..., 1]) / np.float32(grid.res)
+    rc[0] = (np.float32(grid.x_max) - points[..., 0]) / np.float32(grid.res)
+    rc[1] = (np.float32(grid.y_max) - points[..., 1]) / np.float32(grid.res)
+    instance = np.asarray(instance)
+    paint = np.zeros(group.shape, bool) if paint is None else np.asarray(paint, bool)
     step_c = np.float32(step / grid.res)
     own = (group > 0).astype(np.float32)  # weight left on each pixel's own point
     rows, cols = rc[0].reshape(-1), rc[1].reshape(-1)
@@ -123,10 +165,16 @@ def spread_counts(grid, xy: np.ndarray, distance: np.ndarray, group: np.ndarray,
         length = np.sqrt(dr * dr + dc * dc)
         # segments within one step stay on the pixel's point: the same cells, far cheaper
         ok = (group[a] > 0) & (group[b] == group[a]) & (length > step_c)
-        ok &= length * np.float32(grid.res) <= np.float32(max_gap_ratio) * distance[a]
         ra, ca = rc[0][a], rc[1][a]  # and not wholly off the grid on one side
         ok &= (np.minimum(ra, ra + dr) < grid.rows) & (np.maximum(ra, ra + dr) >= 0)
         ok &= (np.minimum(ca, ca + dc) < grid.cols) & (np.maximum(ca, ca + dc) >= 0)
+        cand = np.flatnonzero(ok)
+        if cand.size:
+            pick = lambda x: x.reshape(-1, *x.shape[2:])[cand]  # noqa: E731
+            okc = same_surface(pick(points[a]), pick(points[b]), pick(group[a]), pick(instance[a]),
+                               pick(instance[b]), pick(paint[a] | paint[b]), pick(rays[a]), pick(rays[b]),
+                               pick(distance[a]), rule)
+            ok.reshape(-1)[cand[~okc]] = False
         own[a][ok] -= 0.5
         ia = np.flatnonzero(ok)
         if ia.size == 0:

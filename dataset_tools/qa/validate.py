@@ -1,9 +1,12 @@
 """Check a data set: every frame's files present, readable, right shapes and value ranges, no NaN,
 manifest (and index) consistent.
 
-    python -m dataset_tools.validate <dataset> [--no-labels]
+    python -m dataset_tools.validate <dataset> [--no-labels] [--audit-threshold 0.005]
 
 Prints one line per problem, naming the file and what is wrong, and exits 1 when there are any.
+--audit-threshold also reads <dataset>/audit.json (python -m dataset_tools.audit) and fails the data
+set when its overall share (of the metric the audit ran with, default 'unexplained': visible cells
+with no line of sight and no camera pixel near) is above the threshold.
 """
 
 from __future__ import annotations
@@ -17,7 +20,7 @@ from common.cli import ArgumentParser
 from common.files import read_json
 
 from ..format.index import meta_rig
-from ..format.layout import INDEX, MANIFEST, DatasetError, FrameFiles, Manifest, frame_dir_name
+from ..format.layout import AUDIT, INDEX, MANIFEST, DatasetError, FrameFiles, Manifest, frame_dir_name
 from ..format.reader import read_meta, read_png
 from ..labels.classes import NUM_FINE_CLASSES
 from ..labels.fusion import _find, frame_grid, frame_rig, read_exr_checked, read_topdown
@@ -152,7 +155,26 @@ def check_frame(frame_dir: Path, problems: list, labels: bool = True, n_classes:
             problems.append(f"{path}: class {int(a.max())}, beyond the {n_classes} training classes")
 
 
-def validate(root, labels: bool = True, progress: bool = True) -> list[str]:
+def check_audit(root: Path, threshold: float, problems: list) -> None:
+    """The line-of-sight audit's overall metric (the one audit.json was checked with) within `threshold`."""
+    from .audit import read_audit
+
+    try:
+        a = read_audit(root)
+        metric = str(a.get("metric", "visible_no_los"))
+        share = float(a["overall"][metric])
+    except DatasetError as exc:
+        problems.append(str(exc))
+        return
+    except (AttributeError, KeyError, TypeError, ValueError):
+        problems.append(f"{root / AUDIT}: no overall share to check (rerun python -m dataset_tools.audit {root})")
+        return
+    if share > threshold:
+        problems.append(f"{root / AUDIT}: {metric} {share:.4%} of the visible cells have no line of sight to any "
+                        f"camera (threshold {threshold:.4%})")
+
+
+def validate(root, labels: bool = True, progress: bool = True, audit_threshold: float | None = None) -> list[str]:
     from tqdm import tqdm
 
     root = Path(root)
@@ -169,6 +191,8 @@ def validate(root, labels: bool = True, progress: bool = True) -> list[str]:
             pass
     for e in tqdm(entries, desc="validate", unit="frame", disable=not progress):
         check_frame(root / e["dir"], problems, labels, n_classes)
+    if audit_threshold is not None:
+        check_audit(root, audit_threshold, problems)
     return problems
 
 
@@ -176,8 +200,11 @@ def main(argv=None) -> int:
     ap = ArgumentParser(prog="python -m dataset_tools.validate", description="Check every file of a data set; exit 1 on any problem.")
     ap.add_argument("dataset")
     ap.add_argument("--no-labels", action="store_true", help="renders only (before fusion)")
+    ap.add_argument("--audit-threshold", type=float, metavar="SHARE",
+                    help="fail when audit.json (python -m dataset_tools.audit) has more than this share of "
+                         "visible cells with no line of sight (its metric, default 'unexplained')")
     args = ap.parse_args(argv)
-    problems = validate(args.dataset, labels=not args.no_labels)
+    problems = validate(args.dataset, labels=not args.no_labels, audit_threshold=args.audit_threshold)
     for p in problems:
         print(p)
     if problems:
