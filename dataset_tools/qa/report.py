@@ -246,7 +246,6 @@ def rig_figure(rig, path: Path, box=DEFAULT_EGO_BOX, reach_m: float = 3.0) -> No
     ax.set_aspect("equal")
     ax.set_xlabel("y (m, left)")
     ax.set_ylabel("x (m, forward)")
-    ax.invert_xaxis()
     ax.set_xticks(ax.get_xticks(), [f"{-t:g}" for t in ax.get_xticks()])
     ax.set_title("rig: camera positions and horizontal fields of view")
     write_figure_atomic(fig, path)
