@@ -43,18 +43,7 @@ def _discard(tmp: Path) -> None:
 
 
 def write_bytes_atomic(path, data: bytes) -> None:
-    path = Path(path)
-    tmp = atomic_path(path)
-    try:
-        with open(tmp, "wb") as f:
-            f.write(data)
-        os.replace(tmp, path)
-    except OSError as exc:
-        _discard(tmp)
-        raise _named(exc, path) from None
-    finally:
-        if tmp.exists():
-            _discard(tmp)
+    write_with(path, lambda tmp: Path(tmp).write_bytes(data))
 
 
 def write_text_atomic(path, text: str) -> None:
