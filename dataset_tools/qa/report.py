@@ -310,18 +310,23 @@ def read_audit(root: Path) -> dict | None:
     return a
 
 
-AUDIT_FIGURES = ("visible_no_los", "los_invisible")
+AUDIT_FIGURES = ("visible_no_los", "los_invisible")  # drawn beside the metric the audit checked
+
+
+def audit_metric(audit: dict) -> str:
+    """The figure the audit's threshold applies to (`python -m dataset_tools.audit --metric`)."""
+    m = audit.get("metric")
+    return m if isinstance(m, str) else "visible_no_los"
 
 
 def _number(v):
     return v if isinstance(v, (int, float)) and not isinstance(v, bool) else None
 
 
-def audit_fails(fig: dict, threshold) -> bool:
-    """A frame fails the audit when one of its shares is above the threshold."""
-    if threshold is None:
-        return False
-    return any(isinstance(fig.get(k), (int, float)) and fig[k] > threshold for k in AUDIT_FIGURES)
+def audit_fails(fig: dict, threshold, metric: str = "visible_no_los") -> bool:
+    """A frame fails the audit when its checked metric is above the audit's threshold."""
+    v = _number(fig.get(metric))
+    return threshold is not None and v is not None and v > threshold
 
 
 # ---------------------------------------------------------------- pages
@@ -389,7 +394,7 @@ def overview_page(title: str, idx: DatasetIndex, scenes: dict, st: dict, audit: 
         arow, figs = [], []
         for scene in scenes:
             fr = {k: v for k, v in audit["frames"].items() if k.split("/")[0] == scene}
-            bad = [k for k, v in sorted(fr.items()) if audit_fails(v, th)]
+            bad = [k for k, v in sorted(fr.items()) if audit_fails(v, th, audit_metric(audit))]
             arow.append([f"<a href=\"scenes/{esc(scene)}.html\">{esc(scene)}</a>", len(fr),
                          " ".join(frame_link(n) for n in bad) or "none"])
             if fr:
@@ -397,7 +402,7 @@ def overview_page(title: str, idx: DatasetIndex, scenes: dict, st: dict, audit: 
         overall = audit.get("overall") or {}
         parts.append("<section id=\"audit\"><h2>Line-of-sight audit</h2>"
                      + table(["figure", "overall"], [[esc(k), esc(f"{v:.4g}" if isinstance(v, float) else v)] for k, v in overall.items()])
-                     + table(["scene", "frames audited", f"frames above {th}"], arow)
+                     + table(["scene", "frames audited", f"frames with {esc(audit_metric(audit))} above {th}"], arow)
                      + f"<div class=\"figs\">{''.join(figs)}</div></section>")
     parts.append("<section><h2>Render time</h2><img class=\"fig\" src=\"overview/render_time.png\" alt=\"render time\">"
                  + table(["", "mean s/frame"], [[esc(k), f"{np.mean(v):.2f}"] for k, v in _timings(scenes).items()]) + "</section>")
@@ -421,7 +426,8 @@ def _timings(scenes: dict) -> dict:
 def scene_page(scene: str, infos: list[dict], class_names: list[str], audit: dict | None, has_sheet: bool) -> str:
     data = {"scene": scene, "class_names": class_names, "class_colours": TRAIN_PALETTE[: len(class_names)].tolist(),
             "camera_colours": I.CAMERA_COLOURS.astype(int).tolist(), "passes": list(PASSES), "bev": [list(v) for v in BEV_VIEWS],
-            "audit": {k: v for k, v in (audit or {}).get("frames", {}).items() if k.split("/")[0] == scene},
+            "audit": {k: {f: (round(x, 5) if isinstance(x, float) else x) for f, x in v.items() if not isinstance(x, (dict, list))}
+                      for k, v in (audit or {}).get("frames", {}).items() if k.split("/")[0] == scene},
             "frames": infos}
     strip = "".join(
         f"<button class=\"thumb\" data-frame=\"{i}\" title=\"{esc(f['name'])}\"><img src=\"../frames/{esc(f['name'])}/"
@@ -493,7 +499,8 @@ def build_report(root, out=None, frames_per_scene: int | None = None, threshold:
                             out / "overview" / f"consistency_{scene}.png")
         fr = (audit or {}).get("frames", {})
         if audit is not None and any(n in fr for n in names):
-            series = {k: [_number(fr.get(n, {}).get(k)) for n in names] for k in AUDIT_FIGURES}
+            keys = dict.fromkeys([audit_metric(audit), *AUDIT_FIGURES])
+            series = {k: [_number(fr.get(n, {}).get(k)) for n in names] for k in keys}
             scene_scores_figure(names, series, audit.get("threshold"), f"{scene}: line-of-sight audit", "share",
                                 out / "overview" / f"audit_{scene}.png")
         first = first_ref[names[0]]
