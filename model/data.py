@@ -22,6 +22,7 @@ from geometry.bev import BevGrid
 
 from .augment import ColorJitter, random_transform, warp_image
 from .frustum import Frustum
+from .rectified import rectifier
 
 
 class DataError(InputError):
@@ -40,7 +41,8 @@ class BevDataset(Dataset):
     def __init__(self, index: DatasetIndex | str, split: str, cfg: dict, train: bool = False):
         self.index = index if isinstance(index, DatasetIndex) else DatasetIndex(index)
         self.refs = self.index.frames(split)
-        self.rig = self.index.rig
+        self.rectifier = rectifier(self.index.rig, cfg)  # None: the model sees the fisheye images
+        self.rig = self.rectifier.rig if self.rectifier else self.index.rig
         self.names = self.rig.names
         self.class_names = self.index.class_names
         # thin classes win a block when labels are pooled to the model grid (by name: the class map is configurable)
@@ -74,9 +76,11 @@ class BevDataset(Dataset):
             transforms = self.frustum.nominal_transforms()
         imgs = []
         for rc, t in zip(self.rig, transforms):
-            img = f["images"][rc.name]
-            if img.shape[:2] != (rc.camera.height, rc.camera.width):
-                raise DataError(f"{FrameFiles(ref.dir).camera_png(rc.name)}: size {img.shape[1]}x{img.shape[0]}, rig says {rc.camera.width}x{rc.camera.height}")
+            img, src = f["images"][rc.name], self.index.rig[rc.name].camera
+            if img.shape[:2] != (src.height, src.width):
+                raise DataError(f"{FrameFiles(ref.dir).camera_png(rc.name)}: size {img.shape[1]}x{img.shape[0]}, rig says {src.width}x{src.height}")
+            if self.rectifier:
+                img = self.rectifier(rc.name, img)
             imgs.append(warp_image(img, rc.camera, t))
         images = torch.from_numpy(np.stack(imgs)).permute(0, 3, 1, 2).float() / 255.0
         if self.jitter is not None:
