@@ -7,7 +7,7 @@ PYTHON := $(VENV)/bin/python
 APT_LIBS := libx11-6 libxrender1 libxfixes3 libxi6 libxkbcommon0 libsm6 libice6 libgl1 libegl1 \
             libxxf86vm1 libxext6 libxcursor1 libxinerama1 libxrandr2 libglu1-mesa
 
-.PHONY: setup test bench demo dataset train eval clean
+.PHONY: setup test bench demo dataset train eval ablation clean
 
 setup: $(VENV)/.done
 
@@ -45,6 +45,14 @@ train: setup
 
 eval: setup
 	$(PYTHON) eval.py --checkpoint $(RUN)/latest.pt --split $(SPLIT)
+
+# make ablation BUDGET=9 SEEDS=1 SCALE=cpu [DATA=data/small] [OUT=runs/ablation]: the paper's Tables I and II
+BUDGET ?= 9
+SEEDS ?= 1
+SCALE ?= cpu
+OUT ?= runs/ablation
+ablation: setup
+	$(PYTHON) -m experiments.ablation --budget-minutes $(BUDGET) --seeds $(SEEDS) --scale $(SCALE) --out $(OUT) $(if $(filter command line,$(origin DATA)),--data $(DATA))
 
 demo: setup
 	$(PYTHON) demo.py
