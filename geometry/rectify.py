@@ -87,3 +87,10 @@ def covered_cells(rig: Rig, grid, z: float = 0.0) -> np.ndarray:
         uv, ok = rc.project_ego(pts)
         out |= ok & rc.camera.inside(uv)
     return out
+
+
+def lost_visible_cells(rig: Rig, cylinders: Rig, grid, visibility: np.ndarray) -> float:
+    """Share of the BEV cells seen (p(o) >= 0.5) whose ground point the fisheye rig covers but the
+    cylindrical rig does not."""
+    seen = (visibility >= 0.5) & covered_cells(rig, grid)
+    return float((seen & ~covered_cells(cylinders, grid)).sum() / max(seen.sum(), 1))
