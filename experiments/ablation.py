@@ -106,7 +106,7 @@ def train_row(cfg: dict, run_dir: Path, budget_s: float | None, steps: int | Non
         state = {"seconds": state["seconds"] + time.perf_counter() - t0, "step": res["step"]}
         write_json_atomic(state_path, state)
         return state
-    chunk = 5  # first chunk: time a few steps
+    chunk = 1  # first chunk: time one step (and the run's set-up)
     while state["seconds"] < budget_s:
         target = state["step"] + chunk
         t0 = time.perf_counter()
@@ -261,6 +261,7 @@ def main(argv=None) -> int:
     p.add_argument("--out", default="runs/ablation", help="output folder (default runs/ablation)")
     p.add_argument("--rows", help=f"comma-separated subset of rows (default all: {', '.join(ROWS)})")
     p.add_argument("--set", action="append", default=[], metavar="SECTION.FIELD=VALUE", help="override a config field of every row")
+    p.add_argument("--report", action="store_true", help="train nothing: write the tables from the rows and seeds already finished")
     p.add_argument("--quiet", action="store_true")
     a = p.parse_args(argv)
     if a.budget_minutes is not None and not a.budget_minutes > 0:
@@ -286,8 +287,15 @@ def main(argv=None) -> int:
     results: dict[str, list[dict]] = {}
     jobs = [(r, s) for s in range(a.seeds) for r in rows]
     budget_s = None if a.budget_minutes is None else 60 * a.budget_minutes
-    for row, seed in tqdm(jobs, desc="ablation rows", dynamic_ncols=True, disable=a.quiet):
+    for row, seed in tqdm(jobs, desc="ablation rows", dynamic_ncols=True, disable=a.quiet or a.report):
+        if a.report:
+            done = out / row / f"seed{seed}" / "result.json"
+            if done.is_file():
+                results.setdefault(row, []).append(read_json(done, AblationError))
+            continue
         results.setdefault(row, []).append(run_row(base_path, row, seed, out, a.data, budget_s, a.steps, extra, a.quiet))
+    if not results:
+        raise AblationError(f"{out}: no finished rows to report")
     meta = {"scale": a.scale, "config": SCALES[a.scale], "data": a.data or row_config(base_path, rows[0], 0, None, extra)["data"]["root"],
             "seeds": a.seeds, "steps": a.steps, "budget_minutes": a.budget_minutes, "rows": rows, "wall_seconds_this_call": time.perf_counter() - t0}
     if "rectified" in rows:

@@ -54,6 +54,12 @@ def test_every_row_trains_is_scored_and_lands_in_the_tables(tiny_with_test_split
     assert (out / "pool_max" / "seed0" / "result.json").read_bytes() == before
     assert not (out / "pool_max" / "seed0" / "latest.pt").exists()
 
+    # --report writes the tables from finished rows only, training nothing
+    (out / "tables.json").unlink()
+    assert ablation.main(args[:1] + ["1"] + args[2:] + ["--report", "--seeds", "2"]) == 0
+    assert len(json.loads((out / "tables.json").read_text())["table_2"]) == len(ablation.TABLE_II)
+    assert not (out / "ours" / "seed1").exists()
+
 
 def test_bad_arguments_are_one_line_errors(tmp_path):
     from common.errors import InputError
