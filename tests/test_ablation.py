@@ -68,3 +68,14 @@ def test_bad_arguments_are_one_line_errors(tmp_path):
         ablation.main(["--steps", "1", "--rows", "nope", "--out", str(tmp_path / "o")])
     with pytest.raises(InputError, match="--budget-minutes"):
         ablation.main(["--budget-minutes", "0", "--out", str(tmp_path / "o")])
+
+
+def test_a_time_budget_trains_in_resumable_chunks(tiny_with_test_splits, tmp_path):
+    out = tmp_path / "ablation"
+    args = ["--budget-minutes", "0.002", "--rows", "ours", "--data", str(tiny_with_test_splits), "--out", str(out), "--quiet"]
+    for s in TINY:
+        args += ["--set", s]
+    assert ablation.main(args) == 0
+    state = json.loads((out / "ours" / "seed0" / "budget.json").read_text())
+    result = json.loads((out / "ours" / "seed0" / "result.json").read_text())
+    assert state["seconds"] >= 0.12 and state["step"] == result["steps"] >= 1
