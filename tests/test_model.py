@@ -332,3 +332,14 @@ def test_pretrained_trunk_feature_pixels_are_centred_where_the_lift_assumes(stri
     for k in (0, 1):
         assert abs(cents[c - 1][k] + cents[c][k] - (n - 1)) < 0.02, cents
         assert abs(cents[c][k] - cents[c - 1][k] - stride) < 0.5 * stride, cents
+
+
+def test_pretrained_trunk_without_its_package_is_a_one_line_config_error(monkeypatch):
+    import sys
+
+    from common.errors import ConfigError
+    from model.efficientnet import EfficientNetLite0Encoder
+
+    monkeypatch.setitem(sys.modules, "efficientnet_lite_pytorch", None)  # import fails as if not installed
+    with pytest.raises(ConfigError, match="model.trunk: efficientnet_lite0 needs the packages"):
+        EfficientNetLite0Encoder(8)
