@@ -10,7 +10,7 @@ APT_LIBS := libx11-6 libxrender1 libxfixes3 libxi6 libxkbcommon0 libsm6 libice6 
 # Headless browser for the report's test (tests/test_report.py).
 BROWSER_PKGS := chromium chromium-driver
 
-.PHONY: setup browser test bench demo dataset train eval clean
+.PHONY: setup browser test bench demo dataset train eval ablation clean
 
 setup: $(VENV)/.done
 
@@ -57,6 +57,14 @@ train: setup
 
 eval: setup
 	$(PYTHON) eval.py --checkpoint $(RUN)/latest.pt --split $(SPLIT)
+
+# make ablation BUDGET=9 SEEDS=1 SCALE=cpu [DATA=data/small] [OUT=runs/ablation]: the paper's Tables I and II
+BUDGET ?= 9
+SEEDS ?= 1
+SCALE ?= cpu
+OUT ?= runs/ablation
+ablation: setup
+	$(PYTHON) -m experiments.ablation --budget-minutes $(BUDGET) --seeds $(SEEDS) --scale $(SCALE) --out $(OUT) $(if $(filter command line,$(origin DATA)),--data $(DATA))
 
 demo: setup
 	$(PYTHON) demo.py

@@ -4,7 +4,9 @@
   the LSS paper's description) and against a naive scatter, forward + backward, on the same inputs
   (cpu_default sizes, the default rig's real lift geometry); equal results checked.
 - training samples/s and inference ms per four-camera frame for cpu_default, and peak memory
-  (each measured in a fresh process, on a constructed data set of 480x302 images).
+  (each measured in a fresh process, on a constructed data set of 480x302 images), for the
+  from-scratch trunk and the pretrained EfficientNet-Lite0 (`_efficientnet_lite0` figures).
+- cylindrical rectification (the paper's baseline): ms per four-camera frame, tables per rig.
 
     PYTHONPATH=. python -m bench.model
 """
@@ -179,7 +181,7 @@ def _peak_rss_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
 
 
-def _child_train(data_root: str, steps: int) -> dict:
+def _child_train(data_root: str, steps: int, trunk: str = "scratch") -> dict:
     from torch.utils.data import DataLoader
 
     from dataset_tools.format.reader import DatasetIndex
@@ -189,7 +191,7 @@ def _child_train(data_root: str, steps: int) -> dict:
     from model.losses import class_weights, total_loss
     from train import EpochBatches
 
-    cfg = load_config(ROOT / "configs/train/cpu_default.yaml", {"data": {"root": data_root}})
+    cfg = load_config(ROOT / "configs/train/cpu_default.yaml", {"data": {"root": data_root}, "model": {"trunk": trunk}})
     t = cfg["train"]
     idx = DatasetIndex(data_root)
     ds = BevDataset(idx, "train", cfg, train=True)
@@ -212,23 +214,42 @@ def _child_train(data_root: str, steps: int) -> dict:
         opt.step()
         if k:  # the first step includes the loader's start
             times.append(time.perf_counter() - t0)
-    return {"train_samples_per_s": t["batch_size"] * len(times) / sum(times),
-            "train_peak_rss_mb": _peak_rss_mb()}
+    sfx = "" if trunk == "scratch" else f"_{trunk}"
+    return {f"train_samples_per_s{sfx}": t["batch_size"] * len(times) / sum(times),
+            f"train_peak_rss_mb{sfx}": _peak_rss_mb()}
 
 
-def _child_infer(repeat: int) -> dict:
+def _child_infer(repeat: int, trunk: str = "scratch") -> dict:
     from geometry.rig import load_rig
     from model import build_model
     from model.config import load_config
 
-    cfg = load_config(ROOT / "configs/train/cpu_default.yaml")
+    cfg = load_config(ROOT / "configs/train/cpu_default.yaml", {"model": {"trunk": trunk}})
     torch.manual_seed(0)
     model = build_model(cfg, load_rig(ROOT / "configs/rigs/default.yaml")).eval()
     w, h = cfg["data"]["input_size"]
     x = torch.rand(1, 4, 3, h, w)
     with torch.inference_mode():
         ms = 1000 * _time(lambda: model(x), repeat)
-    return {"infer_ms_per_frame": ms, "infer_peak_rss_mb": _peak_rss_mb()}
+    sfx = "" if trunk == "scratch" else f"_{trunk}"
+    return {f"infer_ms_per_frame{sfx}": ms, f"infer_peak_rss_mb{sfx}": _peak_rss_mb()}
+
+
+def bench_rectify(repeat: int = 10) -> dict:
+    """Cylindrical rectification (the paper's baseline) of a four-camera 480x302 frame: the remap
+    tables' one-off cost per rig and the cost per frame."""
+    import numpy as np
+
+    from geometry.rectify import Rectifier
+    from geometry.rig import load_rig
+
+    rig = load_rig(ROOT / "configs/rigs/default.yaml")
+    t0 = time.perf_counter()
+    rect = Rectifier(rig)
+    setup = time.perf_counter() - t0
+    imgs = {rc.name: np.random.default_rng(0).integers(0, 255, (rc.camera.height, rc.camera.width, 3), dtype=np.uint8) for rc in rig}
+    ms = 1000 * _time(lambda: [rect(n, im) for n, im in imgs.items()], repeat)
+    return {"rectify_ms_per_frame": ms, "rectify_tables_s_per_rig": setup}
 
 
 def _in_child(fn: str, *args) -> dict:
@@ -248,8 +269,11 @@ def run(train_steps: int = 12, infer_repeat: int = 20) -> dict:
     res.update(bench_splat(sum_cameras=False))
     with tempfile.TemporaryDirectory() as tmp:
         root = write_toy_dataset(Path(tmp) / "toy", frames=4 * (train_steps + 1), splits=("train",))
-        res.update(_in_child("_child_train", str(root), train_steps))
-    res.update(_in_child("_child_infer", infer_repeat))
+        for trunk in ("scratch", "efficientnet_lite0"):
+            res.update(_in_child("_child_train", str(root), train_steps, trunk))
+    for trunk in ("scratch", "efficientnet_lite0"):
+        res.update(_in_child("_child_infer", infer_repeat, trunk))
+    res.update(bench_rectify())
     res["goals"] = GOALS
     return res
 

@@ -19,8 +19,9 @@ def build_model(cfg: dict, rig: Rig, num_classes: int = 5):
     """The model of a validated config for a rig (cameras at their native image size)."""
     from .frustum import Frustum
     from .lss import LSSFisheye
+    from .rectified import model_rig
 
-    return LSSFisheye(cfg["model"], Frustum(rig, cfg), num_classes)
+    return LSSFisheye(cfg["model"], Frustum(model_rig(rig, cfg), cfg), num_classes)
 
 
 def save_checkpoint(path, state: dict) -> None:
@@ -37,7 +38,10 @@ def save_checkpoint(path, state: dict) -> None:
 
 def model_part(cfg: dict) -> dict:
     # what decides the network and its inputs; training knobs may differ
-    return {"model": cfg["model"], "input_size": list(cfg["data"]["input_size"]), "grid": cfg["data"]["grid"]}
+    from .rectified import rectify_part
+
+    return {"model": {"trunk": "scratch", **cfg["model"]}, "input_size": list(cfg["data"]["input_size"]), "grid": cfg["data"]["grid"],
+            **rectify_part(cfg)}
 
 
 def load_checkpoint(path, expect_config: dict | None = None, map_location="cpu"):

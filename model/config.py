@@ -38,6 +38,12 @@ SCHEMA = Section({
         "input_size": List(Num(8, 4096, integer=True), length=2, default=[192, 120]),  # (W, H) fed to the encoder
         "grid": GridField(default={"bound": 25.0, "res": 0.25}),  # geometry.bev.BevGrid.from_dict
         "num_workers": Num(0, 64, integer=True, default=1),
+        # the paper's baseline: fisheye images remapped to cylindrical ones (geometry.rectify)
+        "rectify": Str(choices=("none", "cylindrical"), default="none"),
+        "cylinder": Section({
+            "hfov_deg": Num(1.0, 359.0, default=180.0),
+            "vfov_deg": Num(1.0, 179.0, default=90.0),
+        }),
     }),
     "augment": Section({
         "enabled": Bool(default=True),
@@ -52,6 +58,7 @@ SCHEMA = Section({
         "crop": Bool(default=True),
     }),
     "model": Section({
+        "trunk": Str(choices=("scratch", "efficientnet_lite0"), default="scratch"),  # model.encoder / model.efficientnet
         "encoder": Section({
             "widths": List(Num(1, 4096, integer=True), max_length=8, default=[16, 32, 64, 128]),
             "blocks": List(Num(1, 64, integer=True), max_length=8, default=[1, 1, 1]),

@@ -24,6 +24,7 @@ from geometry.bev import BevGrid
 
 from .augment import ColorJitter, random_transform, warp_image
 from .frustum import Frustum
+from .rectified import rectifier
 
 
 class DataError(InputError):
@@ -42,7 +43,8 @@ class BevDataset(Dataset):
     def __init__(self, index: DatasetIndex | str, split: str, cfg: dict, train: bool = False):
         self.index = index if isinstance(index, DatasetIndex) else DatasetIndex(index)
         self.refs = self.index.frames(split)
-        self.rig = self.index.rig
+        self.rectifier = rectifier(self.index.rig, cfg)  # None: the model sees the fisheye images
+        self.rig = self.rectifier.rig if self.rectifier else self.index.rig
         self.names = self.rig.names
         self.class_names = self.index.class_names
         # thin classes win a block when labels are pooled to the model grid (by name: the class map is configurable)
@@ -57,19 +59,21 @@ class BevDataset(Dataset):
         self.jitter = ColorJitter(**a["color_jitter"]) if self.augment else None
         self.epoch = 0
         self.carry_geometry = any(r.own_rig for r in self.refs)
-        self._frusta: dict = {}  # scene -> Frustum of its own rig (a scene keeps one rig)
+        self._frusta: dict = {}  # scene -> (Frustum, rectifier) of its own rig (a scene keeps one rig)
 
-    def frustum_of(self, ref, meta: dict) -> Frustum:
-        """The lift geometry of the frame's rig (the nominal one unless the frame has its own)."""
+    def geometry_of(self, ref, meta: dict):
+        """(lift geometry, rectifier or None) of the frame's rig: the nominal ones unless the
+        frame has its own (jittered) rig, whose fisheye images are then rectified with their own maps."""
         if not ref.own_rig:
-            return self.frustum
+            return self.frustum, self.rectifier
         if ref.scene not in self._frusta:
             if len(self._frusta) >= 16:
                 self._frusta.pop(next(iter(self._frusta)))
-            rig = rig_of_frame(ref, meta, self.rig)
-            if rig.names != self.names:
-                raise DataError(f"{FrameFiles(ref.dir).meta}: rig cameras {rig.names}, the index has {self.names}")
-            self._frusta[ref.scene] = Frustum(rig, self.cfg)
+            fisheye = rig_of_frame(ref, meta, self.index.rig)
+            if fisheye.names != self.names:
+                raise DataError(f"{FrameFiles(ref.dir).meta}: rig cameras {fisheye.names}, the index has {self.names}")
+            rect = rectifier(fisheye, self.cfg)
+            self._frusta[ref.scene] = (Frustum(rect.rig if rect else fisheye, self.cfg), rect)
         return self._frusta[ref.scene]
 
     def set_epoch(self, epoch: int) -> None:
@@ -84,7 +88,7 @@ class BevDataset(Dataset):
         rng = np.random.default_rng([self.seed, self.epoch, i])  # independent streams: no collisions
         seed = int(rng.integers(2**63))  # the colour jitter's torch seed
         sample = {}
-        frustum = self.frustum_of(ref, f["meta"])
+        frustum, rectify = self.geometry_of(ref, f["meta"])
         if self.augment:
             a = self.augment
             transforms = [random_transform(rc.camera, self.input_size, rng, a["scale"], a["rotation_deg"], a["crop"]) for rc in frustum.rig]
@@ -95,9 +99,11 @@ class BevDataset(Dataset):
                 sample["point_cell"], sample["intrinsics"] = frustum.nominal
         imgs = []
         for rc, t in zip(frustum.rig, transforms):
-            img = f["images"][rc.name]
-            if img.shape[:2] != (rc.camera.height, rc.camera.width):
-                raise DataError(f"{FrameFiles(ref.dir).camera_png(rc.name)}: size {img.shape[1]}x{img.shape[0]}, rig says {rc.camera.width}x{rc.camera.height}")
+            img, src = f["images"][rc.name], self.index.rig[rc.name].camera
+            if img.shape[:2] != (src.height, src.width):
+                raise DataError(f"{FrameFiles(ref.dir).camera_png(rc.name)}: size {img.shape[1]}x{img.shape[0]}, rig says {src.width}x{src.height}")
+            if rectify:
+                img = rectify(rc.name, img)
             imgs.append(warp_image(img, rc.camera, t))
         images = torch.from_numpy(np.stack(imgs)).permute(0, 3, 1, 2).float() / 255.0
         if self.jitter is not None:

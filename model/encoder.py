@@ -13,6 +13,8 @@ from torch import nn
 
 from .layers import Up, conv_norm_act, stage
 
+IMAGE_MEAN, IMAGE_STD = 0.45, 0.225
+
 
 class ImageEncoder(nn.Module):
     def __init__(self, widths=(16, 32, 64, 128), blocks=(1, 1, 1), stride: int = 8, depth_bins: int = 32,
@@ -32,6 +34,10 @@ class ImageEncoder(nn.Module):
         self.fuse = Up(up_in, widths[-1], norm) if self.skip_level != len(widths) - 1 else None
         self.dropout = nn.Dropout2d(dropout) if dropout > 0 else nn.Identity()
         self.head = nn.Conv2d(widths[-1], depth_bins + context_channels, 1)
+
+    def normalise(self, images):
+        """(B, 3, H, W) in [0, 1] -> the trunk's input scale."""
+        return (images - IMAGE_MEAN) / IMAGE_STD
 
     def forward(self, images):
         """images (B, 3, H, W), H and W multiples of total_stride -> depth logits (B, D, H/s, W/s),

@@ -12,7 +12,16 @@ from .frustum import Frustum
 from .pooling import make_pooling
 from .splat import splat, splat_count, splat_index
 
-IMAGE_MEAN, IMAGE_STD = 0.45, 0.225
+
+
+def make_encoder(mcfg: dict) -> nn.Module:
+    """The image encoder of `model.trunk`: the from-scratch trunk or the pretrained EfficientNet-Lite0."""
+    d, c = mcfg["depth"], mcfg["context_channels"]
+    if mcfg.get("trunk", "scratch") == "efficientnet_lite0":  # .get: checkpoints written before the option
+        from .efficientnet import EfficientNetLite0Encoder
+
+        return EfficientNetLite0Encoder(mcfg["stride"], d["bins"], c, mcfg["encoder"]["widths"][-1], mcfg["norm"], mcfg["dropout"])
+    return ImageEncoder(mcfg["encoder"]["widths"], mcfg["encoder"]["blocks"], mcfg["stride"], d["bins"], c, mcfg["norm"], mcfg["dropout"])
 
 
 class LSSFisheye(nn.Module):
@@ -22,10 +31,8 @@ class LSSFisheye(nn.Module):
         self.frustum = frustum
         self.grid, self.input_size, self.camera_names = frustum.grid, frustum.input_size, frustum.rig.names
         self.stride = mcfg["stride"]
-        d = mcfg["depth"]
         c = mcfg["context_channels"]
-        self.encoder = ImageEncoder(mcfg["encoder"]["widths"], mcfg["encoder"]["blocks"], self.stride, d["bins"], c,
-                                    mcfg["norm"], mcfg["dropout"])
+        self.encoder = make_encoder(mcfg)
         pc, intr = frustum.nominal  # the cameras without augmentation
         self.register_buffer("nominal_point_cell", pc, persistent=False)
         self.register_buffer("nominal_intrinsics", intr, persistent=False)
@@ -54,7 +61,7 @@ class LSSFisheye(nn.Module):
     def lift(self, images):
         """images (B, N, 3, H, W) in [0, 1] -> depth probabilities (B, N, D, h, w), context (B, N, C, h, w)."""
         b, n, _, h, w = images.shape
-        x = (images.flatten(0, 1) - IMAGE_MEAN) / IMAGE_STD
+        x = self.encoder.normalise(images.flatten(0, 1))
         ts = self.encoder.total_stride
         x = F.pad(x, (0, -w % ts, 0, -h % ts))  # right/bottom padding keeps the principal point
         depth_logits, ctx = self.encoder(x)

@@ -296,3 +296,50 @@ def test_encoder_feature_pixels_are_centred_where_the_lift_assumes(stride):
         cu, cv = float((u * w).sum() / w.sum()), float((v * w).sum() / w.sum())
         # (zero padding at the far image borders still pulls the deepest level by a hair)
         assert abs(cu - (stride * j + (stride - 1) / 2)) < 0.02 and abs(cv - (stride * i + (stride - 1) / 2)) < 0.02, (cu, cv)
+
+
+@pytest.mark.parametrize("stride", [8, 16])
+def test_pretrained_trunk_feature_pixels_are_centred_where_the_lift_assumes(stride):
+    """The same for the EfficientNet-Lite0 trunk (stride-2 kernels widened and padded
+    symmetrically): constant kernels, identity batch norms, an input small enough that ReLU6 stays
+    linear. Its receptive field reaches the borders, which pull a centroid towards the image
+    centre, so the check uses the two feature pixels either side of the centre: mirror images of
+    each other, their centroids must sum to (n - 1) exactly when a pixel sits at s j + (s - 1) / 2
+    (half a pixel off per stride-2 level, as "SAME" padding is, would add 2 x 3.5 px at stride 8)."""
+    from model.efficientnet import EfficientNetLite0Encoder
+
+    enc = EfficientNetLite0Encoder(stride, depth_bins=2, context_channels=2, width=8, norm="batch").eval()
+    with torch.no_grad():
+        for m in enc.modules():
+            if isinstance(m, torch.nn.Conv2d):
+                assert m.kernel_size[0] % 2 == (0 if m.stride[0] == 2 else 1)
+                m.weight.fill_(1.0 / m.weight[0].numel())
+                if m.bias is not None:
+                    m.bias.zero_()
+            elif isinstance(m, torch.nn.BatchNorm2d):
+                m.running_mean.zero_(), m.running_var.fill_(1.0), m.weight.fill_(1.0), m.bias.zero_()
+    n = 256
+    x = torch.full((1, 3, n, n), 1e-3, requires_grad=True)
+    depth, _ = enc(x)
+    assert depth.shape[-2:] == (n // stride, n // stride)
+    c = n // stride // 2
+    v, u = torch.meshgrid(torch.arange(float(n)), torch.arange(float(n)), indexing="ij")
+    cents = {}
+    for i, j in [(c - 1, c - 1), (c, c)]:
+        (g,) = torch.autograd.grad(depth[0, 0, i, j], x, retain_graph=True)
+        w = g[0].abs().sum(0)
+        cents[j] = float((u * w).sum() / w.sum()), float((v * w).sum() / w.sum())
+    for k in (0, 1):
+        assert abs(cents[c - 1][k] + cents[c][k] - (n - 1)) < 0.02, cents
+        assert abs(cents[c][k] - cents[c - 1][k] - stride) < 0.5 * stride, cents
+
+
+def test_pretrained_trunk_without_its_package_is_a_one_line_config_error(monkeypatch):
+    import sys
+
+    from common.errors import ConfigError
+    from model.efficientnet import EfficientNetLite0Encoder
+
+    monkeypatch.setitem(sys.modules, "efficientnet_lite_pytorch", None)  # import fails as if not installed
+    with pytest.raises(ConfigError, match="model.trunk: efficientnet_lite0 needs the packages"):
+        EfficientNetLite0Encoder(8)

@@ -1,0 +1,31 @@
+"""The rig the model sees: the data set's fisheye rig, or its cylindrical rectification
+(`data.rectify: cylindrical`, the paper's LSS baseline; see geometry.rectify)."""
+
+from __future__ import annotations
+
+from geometry.rectify import Rectifier, cylindrical_rig
+from geometry.rig import Rig
+
+
+def _cylinder(cfg: dict) -> tuple[float, float] | None:
+    d = cfg["data"]
+    if d.get("rectify", "none") == "none":  # .get: checkpoints written before the option
+        return None
+    c = d["cylinder"]
+    return c["hfov_deg"], c["vfov_deg"]
+
+
+def model_rig(rig: Rig, cfg: dict) -> Rig:
+    fov = _cylinder(cfg)
+    return rig if fov is None else cylindrical_rig(rig, *fov)
+
+
+def rectifier(rig: Rig, cfg: dict) -> Rectifier | None:
+    fov = _cylinder(cfg)
+    return None if fov is None else Rectifier(rig, *fov)
+
+
+def rectify_part(cfg: dict) -> dict:
+    """What of `data` decides the model's cameras (for checkpoint compatibility)."""
+    fov = _cylinder(cfg)
+    return {"rectify": "none"} if fov is None else {"rectify": cfg["data"]["rectify"], "cylinder": list(fov)}
