@@ -122,7 +122,7 @@ class FusionConfig:
 # ---------------------------------------------------------------- reading the passes
 
 
-def _find(channels: dict, path, *names, required=True):
+def find_channel(channels: dict, path, *names, required=True):
     """The channel whose name (or its last dotted part, or its layer with one channel) is one of
     `names`, case-insensitively."""
     low = {k.lower(): k for k in channels}
@@ -181,13 +181,13 @@ def _labels_int(a, path, what) -> np.ndarray:
 def read_camera_passes(path) -> dict:
     """distance (H, W) float32, semantic and instance (H, W) int64 from a cam_<name>.exr."""
     ch = read_exr_checked(path)
-    dist = _find(ch, path, "distance", "depth")
+    dist = find_channel(ch, path, "distance")
     if np.isnan(dist).any():
         raise DatasetError(f"{path}: channel 'distance' has NaN")
     return {
         "distance": np.asarray(dist, np.float32),
-        "semantic": _labels_int(_find(ch, path, "semantic", "indexma"), path, "semantic"),
-        "instance": _labels_int(_find(ch, path, "instance", "indexob"), path, "instance"),
+        "semantic": _labels_int(find_channel(ch, path, "semantic"), path, "semantic"),
+        "instance": _labels_int(find_channel(ch, path, "instance"), path, "instance"),
     }
 
 
@@ -202,9 +202,9 @@ def read_topdown(frame_dir) -> dict:
         sub = {k.split(".", 1)[1]: v for k, v in ch.items() if k.lower().startswith(layer + ".")}
         if not sub:
             raise DatasetError(f"{path}: no '{layer}.' layer (has: {', '.join(sorted(ch))})")
-        out["semantic" + suffix] = _labels_int(_find(sub, path, "semantic"), path, f"{layer}.semantic")
-        out["instance" + suffix] = _labels_int(_find(sub, path, "instance"), path, f"{layer}.instance")
-        h = _find(sub, path, "height", required=False)
+        out["semantic" + suffix] = _labels_int(find_channel(sub, path, "semantic"), path, f"{layer}.semantic")
+        out["instance" + suffix] = _labels_int(find_channel(sub, path, "instance"), path, f"{layer}.instance")
+        h = find_channel(sub, path, "height", required=False)
         if h is not None:
             out["height" + suffix] = np.asarray(h, np.float32)
     return out

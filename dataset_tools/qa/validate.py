@@ -23,7 +23,7 @@ from ..format.index import meta_rig
 from ..format.layout import AUDIT, INDEX, MANIFEST, DatasetError, FrameFiles, Manifest, frame_dir_name
 from ..format.reader import read_meta, read_png
 from ..labels.classes import NUM_FINE_CLASSES
-from ..labels.fusion import _find, frame_grid, frame_rig, read_exr_checked, read_topdown
+from ..labels.fusion import find_channel, frame_grid, frame_rig, read_exr_checked, read_topdown
 
 
 def check_manifest(root: Path, problems: list) -> list[dict]:
@@ -80,9 +80,9 @@ def check_index(root: Path, entries: list[dict], problems: list) -> None:
 def _check_exr_camera(path: Path, shape, problems: list) -> None:
     try:
         ch = read_exr_checked(path)
-        dist = _find(ch, path, "distance", "depth")
-        sem = _find(ch, path, "semantic", "indexma")
-        ins = _find(ch, path, "instance", "indexob")
+        dist = find_channel(ch, path, "distance")
+        sem = find_channel(ch, path, "semantic")
+        ins = find_channel(ch, path, "instance")
     except DatasetError as exc:
         problems.append(str(exc))
         return
