@@ -27,11 +27,14 @@ TINY = ["data.input_size=[64, 40]", "data.grid={bound: 25.0, res: 0.78125}", "da
         "train.batch_size=2", "train.threads=1", "augment.enabled=false"]
 
 
+def runner_args(*args) -> list[str]:
+    """The runner's arguments plus --quiet and the tiny model (TINY) as --set overrides."""
+    return [*args, "--quiet", *[a for s in TINY for a in ("--set", s)]]
+
+
 def test_every_row_trains_is_scored_and_lands_in_the_tables(tiny_with_test_splits, tmp_path):
     out = tmp_path / "ablation"
-    args = ["--steps", "2", "--seeds", "1", "--data", str(tiny_with_test_splits), "--out", str(out), "--quiet"]
-    for s in TINY:
-        args += ["--set", s]
+    args = runner_args("--steps", "2", "--seeds", "1", "--data", str(tiny_with_test_splits), "--out", str(out))
     assert ablation.main(args) == 0
     tables = json.loads((out / "tables.json").read_text())
     assert {r["row"] for r in tables["table_1"]} == {"ours", "rectified", "ours_scratch_trunk"}
@@ -72,9 +75,7 @@ def test_bad_arguments_are_one_line_errors(tmp_path):
 
 def test_a_time_budget_trains_in_resumable_chunks(tiny_with_test_splits, tmp_path):
     out = tmp_path / "ablation"
-    args = ["--budget-minutes", "0.002", "--rows", "ours", "--data", str(tiny_with_test_splits), "--out", str(out), "--quiet"]
-    for s in TINY:
-        args += ["--set", s]
+    args = runner_args("--budget-minutes", "0.002", "--rows", "ours", "--data", str(tiny_with_test_splits), "--out", str(out))
     assert ablation.main(args) == 0
     state = json.loads((out / "ours" / "seed0" / "budget.json").read_text())
     result = json.loads((out / "ours" / "seed0" / "result.json").read_text())

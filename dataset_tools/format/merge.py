@@ -18,7 +18,7 @@ from pathlib import Path
 from common.files import clean_stale_temps, read_json
 
 from .index import build_index, write_index
-from .layout import INDEX, RECIPES_DIR, DatasetError, FrameFiles, Manifest
+from .layout import INDEX, RECIPES_DIR, DatasetError, FrameFiles, Manifest, frame_dir_name
 
 MAX_LISTED = 10  # problems listed in full; the rest are counted
 
@@ -45,7 +45,7 @@ def check_parts(out: Path, parts: list[Path], expected: set | None = None) -> tu
     if expected is not None:
         missing = sorted(expected - frames.keys())
         extra = sorted(frames.keys() - expected)
-        problems += [f"{s}/{f:06d}: missing from every part" for s, f in missing]
+        problems += [f"{frame_dir_name(s, f)}: missing from every part" for s, f in missing]
         problems += [f"{frames[k][0] / frames[k][1]['dir']}: not a frame of the config" for k in extra]
     return frames, problems
 

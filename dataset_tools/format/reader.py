@@ -20,7 +20,7 @@ import numpy as np
 from common.files import read_json
 
 from .index import build_index
-from .layout import INDEX, MANIFEST, VISIBILITY_SCALE, DatasetError, FrameFiles, Manifest, read_meta
+from .layout import INDEX, MANIFEST, VISIBILITY_SCALE, DatasetError, FrameFiles, Manifest, frame_dir_name, read_meta
 
 @dataclass(frozen=True)
 class FrameRef:
@@ -33,7 +33,7 @@ class FrameRef:
 
     @property
     def name(self) -> str:
-        return f"{self.scene}/{self.frame:06d}"
+        return frame_dir_name(self.scene, self.frame)
 
 
 class DatasetIndex:

@@ -22,9 +22,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from common.files import clean_stale_temps, write_bytes_atomic, write_figure_atomic, write_json_atomic, write_text_atomic
+from common.files import clean_stale_temps, read_json, write_bytes_atomic, write_figure_atomic, write_json_atomic, write_text_atomic
 
-from ..format.layout import AUDIT, REPORT_DIR, DatasetError, FrameFiles
+from ..format.layout import AUDIT, REPORT_DIR, DatasetError, FrameFiles, frame_dir_name
 from ..format.reader import DatasetIndex, downsample_labels, read_labels, read_png
 from ..labels.classes import TRAIN_PALETTE
 from ..labels.fusion import DEFAULT_EGO_BOX, FusionConfig
@@ -292,10 +292,7 @@ def read_audit(root: Path) -> dict | None:
     path = root / AUDIT
     if not path.is_file():
         return None
-    try:
-        a = json.loads(path.read_text())
-    except (OSError, ValueError) as exc:
-        raise DatasetError(f"{path}: not readable JSON ({exc})") from None
+    a = read_json(path, DatasetError)
     if not isinstance(a, dict) or not isinstance(a.get("frames", {}), dict):
         raise DatasetError(f"{path}: field 'frames' must be a mapping of '<scene>/<frame>' to figures")
     for name, fig in a.get("frames", {}).items():
@@ -477,7 +474,7 @@ def build_report(root, out=None, frames_per_scene: int | None = None, threshold:
     scenes: dict[str, list[dict]] = {}
     rebuilt = 0
     for ref in tqdm(refs, desc="report", unit="frame", disable=not progress):
-        info, new = frame_info(ref, out / "frames" / ref.scene / f"{ref.frame:06d}", cfg, idx.class_names, force)
+        info, new = frame_info(ref, out / "frames" / frame_dir_name(ref.scene, ref.frame), cfg, idx.class_names, force)
         rebuilt += new
         scenes.setdefault(ref.scene, []).append(info)
     audit = read_audit(root)
