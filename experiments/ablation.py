@@ -7,10 +7,12 @@ Every row is the base config (`--scale cpu`: configs/train/cpu_default.yaml; `gp
 configs/train/paper.yaml) with the paper's best settings (intrinsics-embedding pooling, uniform
 class weights, occlusion loss, the pretrained EfficientNet-Lite0 trunk) and one change. Each row and
 seed trains with train.py's functions for the same wall-clock budget (or the same number of steps),
-from the same seed, then is scored with eval.py's protocol on the easy, medium and hard splits.
+from the same seed, then is scored with eval.py's protocol on the easy, medium and hard splits (and
+`heldout`, sampled scenes from seeds training never used, where the data set has one).
 
 Resumable: `<out>/<row>/seed<k>/` holds the run; `result.json` there marks it finished (never
-rerun); a killed row resumes from its latest.pt and its recorded training time (`budget.json`).
+retrained; scored on an evaluation split the data set has gained since); a killed row resumes from
+its latest.pt and its recorded training time (`budget.json`).
 Writes `<out>/tables.md` and `<out>/tables.json` with the paper's numbers beside ours (mean and
 standard deviation over seeds when there are several).
 """
@@ -48,7 +50,7 @@ ROWS = {
 }
 COLUMNS = [("miou", "mIoU"), ("iou/occlusion", "Occlusion"), ("iou/vehicle", "Vehicles"),
            ("iou/lane_marking", "Markings"), ("iou/street", "Street"), ("iou/background", "Background")]
-EVAL_SPLITS = ("easy", "medium", "hard")
+EVAL_SPLITS = ("easy", "medium", "hard", "heldout")  # heldout: sampled scenes of unseen seeds, where the data set has them
 
 # The paper's numbers (DaF-BEVSeg, Tables I and II), in COLUMNS order (None: not reported).
 PAPER_TABLE_I = {
@@ -128,17 +130,30 @@ def evaluate_row(run_dir: Path, splits) -> dict:
     from model import load_checkpoint
 
     model, cfg, ckpt = load_checkpoint(run_dir / "latest.pt")
-    model.eval()
     index = DatasetIndex(cfg["data"]["root"])
+    splits = [s for s in splits if index.splits.get(s)]
+    if not splits:
+        return {}
+    model.eval()
     (run_dir / "eval").mkdir(exist_ok=True)
-    return {s: evaluate_split(model, cfg, index, s, run_dir / "eval", 0, False) for s in splits if index.splits.get(s)}
+    return {s: evaluate_split(model, cfg, index, s, run_dir / "eval", 0, False) for s in splits}
+
+
+def _split_results(splits: dict) -> dict:
+    return {s: {"overall": r["overall"], "frames": r["frames"], "inference_ms_per_frame": r["inference_ms_per_frame"]}
+            for s, r in splits.items()}
 
 
 def run_row(base_path, row, seed, out: Path, data, budget_s, steps, extra, quiet) -> dict:
     run_dir = out / row / f"seed{seed}"
     done = run_dir / "result.json"
     if done.is_file():
-        return read_json(done, AblationError)
+        result = read_json(done, AblationError)
+        missing = [s for s in EVAL_SPLITS if s not in result["splits"]]
+        if missing and (run_dir / "latest.pt").is_file() and (new := evaluate_row(run_dir, missing)):
+            result["splits"].update(_split_results(new))  # a split added to the data set later: scored, not retrained
+            write_json_atomic(done, result)
+        return result
     run_dir.mkdir(parents=True, exist_ok=True)
     cfg = row_config(base_path, row, seed, data, extra)
     t0 = time.perf_counter()
@@ -146,8 +161,7 @@ def run_row(base_path, row, seed, out: Path, data, budget_s, steps, extra, quiet
     splits = evaluate_row(run_dir, EVAL_SPLITS)
     result = {"row": row, "seed": seed, "steps": state["step"], "train_seconds": state["seconds"],
               "eval_seconds": time.perf_counter() - t0 - state["seconds"],
-              "splits": {s: {"overall": r["overall"], "frames": r["frames"], "inference_ms_per_frame": r["inference_ms_per_frame"]}
-                         for s, r in splits.items()}}
+              "splits": _split_results(splits)}
     write_json_atomic(done, result)
     return result
 
@@ -218,6 +232,8 @@ def tables(results: dict[str, list[dict]], meta: dict) -> tuple[str, dict]:
         if row not in results:
             continue
         for split in EVAL_SPLITS:
+            if not any(split in r["splits"] for r in results[row]):
+                continue
             s = summarise(results[row], split)
             paper = PAPER_TABLE_I.get((row, split), [None] * len(COLUMNS))
             lines.append(f"| {label} | {split} | " + " | ".join(f"{_cell(s[k])} | {_paper(p)}" for (k, _), p in zip(COLUMNS, paper)) + " |")

@@ -80,3 +80,22 @@ def test_a_time_budget_trains_in_resumable_chunks(tiny_with_test_splits, tmp_pat
     state = json.loads((out / "ours" / "seed0" / "budget.json").read_text())
     result = json.loads((out / "ours" / "seed0" / "result.json").read_text())
     assert state["seconds"] >= 0.12 and state["step"] == result["steps"] >= 1
+
+
+def test_a_split_added_later_is_scored_without_retraining(tiny_with_test_splits, tmp_path):
+    out = tmp_path / "ablation"
+    args = runner_args("--steps", "1", "--rows", "ours", "--data", str(tiny_with_test_splits), "--out", str(out))
+    assert ablation.main(args) == 0
+    run = out / "ours" / "seed0"
+    assert "heldout" not in json.loads((run / "result.json").read_text())["splits"]
+    assert "| heldout |" not in (out / "tables.md").read_text()
+    index_path = tiny_with_test_splits / "index.json"
+    index = json.loads(index_path.read_text())
+    index["splits"]["heldout"] = index["splits"]["train"][6:8]
+    index_path.write_text(json.dumps(index))
+    trained = (run / "latest.pt").stat().st_mtime_ns
+    assert ablation.main(args) == 0
+    result = json.loads((run / "result.json").read_text())
+    assert set(result["splits"]) == {"easy", "medium", "hard", "heldout"} and result["splits"]["heldout"]["frames"] == 2
+    assert result["steps"] == 1 and (run / "latest.pt").stat().st_mtime_ns == trained
+    assert "| LSS-fisheye (ours), raw fisheye | heldout |" in (out / "tables.md").read_text()
