@@ -130,11 +130,8 @@ def evaluate_row(run_dir: Path, splits) -> dict:
     from model import load_checkpoint
 
     model, cfg, ckpt = load_checkpoint(run_dir / "latest.pt")
-    index = DatasetIndex(cfg["data"]["root"])
-    splits = [s for s in splits if index.splits.get(s)]
-    if not splits:
-        return {}
     model.eval()
+    index = DatasetIndex(cfg["data"]["root"])
     (run_dir / "eval").mkdir(exist_ok=True)
     return {s: evaluate_split(model, cfg, index, s, run_dir / "eval", 0, False) for s in splits}
 
@@ -144,21 +141,22 @@ def _split_results(splits: dict) -> dict:
             for s, r in splits.items()}
 
 
-def run_row(base_path, row, seed, out: Path, data, budget_s, steps, extra, quiet) -> dict:
+def run_row(base_path, row, seed, out: Path, data, budget_s, steps, extra, quiet, eval_splits) -> dict:
+    """Train and score one row and seed (`eval_splits`: those of EVAL_SPLITS the data set has)."""
     run_dir = out / row / f"seed{seed}"
     done = run_dir / "result.json"
     if done.is_file():
         result = read_json(done, AblationError)
-        missing = [s for s in EVAL_SPLITS if s not in result["splits"]]
-        if missing and (run_dir / "latest.pt").is_file() and (new := evaluate_row(run_dir, missing)):
-            result["splits"].update(_split_results(new))  # a split added to the data set later: scored, not retrained
+        missing = [s for s in eval_splits if s not in result["splits"]]
+        if missing and (run_dir / "latest.pt").is_file():
+            result["splits"].update(_split_results(evaluate_row(run_dir, missing)))  # a split added to the data set later: scored, not retrained
             write_json_atomic(done, result)
         return result
     run_dir.mkdir(parents=True, exist_ok=True)
     cfg = row_config(base_path, row, seed, data, extra)
     t0 = time.perf_counter()
     state = train_row(cfg, run_dir, budget_s, steps, quiet)
-    splits = evaluate_row(run_dir, EVAL_SPLITS)
+    splits = evaluate_row(run_dir, eval_splits)
     result = {"row": row, "seed": seed, "steps": state["step"], "train_seconds": state["seconds"],
               "eval_seconds": time.perf_counter() - t0 - state["seconds"],
               "splits": _split_results(splits)}
@@ -298,7 +296,12 @@ def main(argv=None) -> int:
     if out.exists() and not out.is_dir():
         raise AblationError(f"--out: {out} is a file, not a folder")
     out.mkdir(parents=True, exist_ok=True)
-    row_config(base_path, rows[0], 0, a.data, extra)  # a bad config fails here, before any training
+    data_root = row_config(base_path, rows[0], 0, a.data, extra)["data"]["root"]  # a bad config fails here, before any training
+    if not a.report:
+        from dataset_tools import DatasetIndex
+
+        have = DatasetIndex(data_root).splits
+        eval_splits = [s for s in EVAL_SPLITS if have.get(s)]
     t0 = time.perf_counter()
     results: dict[str, list[dict]] = {}
     jobs = [(r, s) for s in range(a.seeds) for r in rows]
@@ -309,10 +312,10 @@ def main(argv=None) -> int:
             if done.is_file():
                 results.setdefault(row, []).append(read_json(done, AblationError))
             continue
-        results.setdefault(row, []).append(run_row(base_path, row, seed, out, a.data, budget_s, a.steps, extra, a.quiet))
+        results.setdefault(row, []).append(run_row(base_path, row, seed, out, a.data, budget_s, a.steps, extra, a.quiet, eval_splits))
     if not results:
         raise AblationError(f"{out}: no finished rows to report")
-    meta = {"scale": a.scale, "config": SCALES[a.scale], "data": a.data or row_config(base_path, rows[0], 0, None, extra)["data"]["root"],
+    meta = {"scale": a.scale, "config": SCALES[a.scale], "data": data_root,
             "seeds": a.seeds, "steps": a.steps, "budget_minutes": a.budget_minutes, "rows": rows, "wall_seconds_this_call": time.perf_counter() - t0}
     if "rectified" in rows:
         meta["rectification"] = rectification_report(row_config(base_path, "rectified", 0, a.data, extra))
