@@ -28,7 +28,7 @@ import numpy as np
 
 from common.cli import run_cli
 from common.errors import InputError
-from common.files import read_json, write_json_atomic, write_text_atomic
+from common.files import output_dir, read_json, write_json_atomic, write_text_atomic
 from common.schema import deep_merge
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -292,10 +292,7 @@ def main(argv=None) -> int:
 
     extra = parse_overrides(a.set)
     base_path = ROOT / SCALES[a.scale]
-    out = Path(a.out)
-    if out.exists() and not out.is_dir():
-        raise AblationError(f"--out: {out} is a file, not a folder")
-    out.mkdir(parents=True, exist_ok=True)
+    out = output_dir(a.out)
     data_root = row_config(base_path, rows[0], 0, a.data, extra)["data"]["root"]  # a bad config fails here, before any training
     if not a.report:
         from dataset_tools import DatasetIndex
