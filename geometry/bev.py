@@ -76,7 +76,3 @@ class BevGrid:
             col = np.floor((self.y_max - xy[..., 1]) / self.res).astype(np.int64)
         inside = (row >= 0) & (row < self.rows) & (col >= 0) & (col < self.cols)
         return row, col, inside
-
-    def centre_of(self, row, col):
-        """Cell (row, col) -> ego (x, y) of its centre."""
-        return self.x_max - (np.asarray(row) + 0.5) * self.res, self.y_max - (np.asarray(col) + 0.5) * self.res

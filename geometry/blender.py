@@ -25,6 +25,7 @@ from common.files import write_text_atomic
 
 from .bev import BevGrid
 from .cameras import Camera, CameraError, Cylindrical, KBTheta, RadialPoly, camera_from_dict
+from .shapes import check_shape
 
 OSL_DIR = Path(__file__).parent / "osl"
 
@@ -39,29 +40,22 @@ class BlenderFitError(ValueError):
 # ---------------------------------------------------------------- frames
 
 
-def _check_4x4(m, what: str) -> np.ndarray:
-    m = np.asarray(m, dtype=np.float64)
-    if m.shape != (4, 4):
-        raise ValueError(f"{what} must be a 4x4 matrix, got shape {m.shape}")
-    return m
-
-
 def blender_camera_matrix(cam_to_ego, ego_pose=None) -> np.ndarray:
     """The Blender camera object's matrix from our camera-to-ego transform.
 
     Without ``ego_pose`` it is the camera's local matrix under an ego empty (parent); with
     ``ego_pose`` (ego -> world, 4x4) it is the camera's world matrix.
     """
-    m = _check_4x4(cam_to_ego, "cam_to_ego").copy()
+    m = check_shape(np.asarray(cam_to_ego, dtype=np.float64), (4, 4), "cam_to_ego").copy()
     m[:3, :3] = m[:3, :3] @ BLENDER_FROM_OPENCV
     if ego_pose is not None:
-        m = _check_4x4(ego_pose, "ego_pose") @ m
+        m = check_shape(np.asarray(ego_pose, dtype=np.float64), (4, 4), "ego_pose") @ m
     return m
 
 
 def opencv_camera_matrix(blender_matrix) -> np.ndarray:
     """Inverse of ``blender_camera_matrix`` (without ego pose): Blender camera matrix -> cam_to_ego."""
-    m = _check_4x4(blender_matrix, "blender_matrix").copy()
+    m = check_shape(np.asarray(blender_matrix, dtype=np.float64), (4, 4), "blender_matrix").copy()
     m[:3, :3] = m[:3, :3] @ BLENDER_FROM_OPENCV
     return m
 
@@ -91,7 +85,6 @@ def _osl_values(camera: Camera) -> dict[str, str]:
     if isinstance(camera, KBTheta):
         p = list(camera.params["p"]) + [0.0] * (9 - len(camera.params["p"]))
         values["p"] = ", ".join(_osl_float(x) for x in p)
-        values["r_max"] = _osl_float(camera.r_max)
     for attr in ("theta_max", "rho_max"):
         if attr in values:
             continue

@@ -29,6 +29,8 @@ import torch
 
 from common.errors import InputError
 
+from .shapes import check_shape
+
 SOLVE_TOL = 1e-13
 _EPS = 1e-12
 
@@ -51,11 +53,6 @@ def _to_torch(x) -> tuple[torch.Tensor, bool]:
 
 def _back(t: torch.Tensor, to_numpy: bool):
     return t.detach().cpu().numpy() if to_numpy else t
-
-
-def _check_last(t: torch.Tensor, n: int, what: str) -> None:
-    if t.ndim < 1 or t.shape[-1] != n:
-        raise ValueError(f"{what} must have shape (..., {n}), got {tuple(t.shape)}")
 
 
 def _safe_div(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
@@ -199,20 +196,20 @@ class Camera:
     # -- public API
     def project(self, points):
         p, to_np = _to_torch(points)
-        _check_last(p, 3, "points")
+        check_shape(p, (..., 3), "points")
         uv, valid = self._project(p)
         return _back(uv, to_np), _back(valid, to_np)
 
     def unproject(self, uv):
         q, to_np = _to_torch(uv)
-        _check_last(q, 2, "uv")
+        check_shape(q, (..., 2), "uv")
         rays, valid = self._unproject(q)
         return _back(rays, to_np), _back(valid, to_np)
 
     def inside(self, uv):
         """True where a pixel position lies on the image (between the outer pixel edges)."""
         q, to_np = _to_torch(uv)
-        _check_last(q, 2, "uv")
+        check_shape(q, (..., 2), "uv")
         u, v = q[..., 0], q[..., 1]
         m = (u >= -0.5) & (u <= self.width - 0.5) & (v >= -0.5) & (v <= self.height - 0.5)
         return _back(m, to_np)
@@ -457,8 +454,9 @@ class RadialPoly(_PolyRadial):
         return d
 
 
-class KBTheta(Camera):
-    """The paper's eq. 1: theta = p1 r + p2 r^2 + ... (r normalised by fx, fy). Projection inverts it."""
+class KBTheta(RadialCamera):
+    """The paper's eq. 1: theta = p1 r + p2 r^2 + ... (r normalised by fx, fy). A radial model whose
+    theta_of_rho is the polynomial; rho(theta), used by projection, inverts it."""
 
     model, keys = "kb_theta", ("fx", "fy", "cx", "cy", "p")
     list_keys = {"p": (1, 9)}
@@ -469,26 +467,19 @@ class KBTheta(Camera):
             raise CameraError("kb_theta: 'p' must start with a positive p1")
         c = np.asarray([0.0] + list(self.params["p"]), dtype=np.float64)
         # r where theta stops increasing or reaches pi (p1 > 0 makes one of them exist)
-        self.r_max = _monotonic_limit(c, 1e6, math.pi)
-        self.theta_max = float(np.polynomial.polynomial.polyval(self.r_max, c))
+        self._rho_max = _monotonic_limit(c, 1e6, math.pi)
+        self.theta_max = float(np.polynomial.polynomial.polyval(self._rho_max, c))
 
-    def _project(self, p):
-        x, y, z = p.unbind(-1)
-        chi = torch.sqrt(x * x + y * y)
-        theta = torch.atan2(chi, z)
-        c = self._t(self.params["p"], p)
-        r = _invert_monotonic(lambda t: _poly(c, t), lambda t: _poly_deriv(c, t), theta, self.r_max, theta / c[0])
-        scale = _safe_div(r, chi)
-        valid = (theta < self.theta_max) & ((chi > 0) | (z > 0))
-        return self._to_pixels(scale * x, scale * y), valid
+    @property
+    def rho_max(self):
+        return self._rho_max
 
-    def _unproject(self, uv):
-        mx, my = self._normalised(uv)
-        r = torch.sqrt(mx * mx + my * my)
-        theta = _poly(self._t(self.params["p"], uv), r)
-        s = _safe_div(torch.sin(theta), r)
-        rays = torch.stack([s * mx, s * my, torch.cos(theta)], -1)
-        return rays, r < self.r_max
+    def rho(self, theta):
+        c = self._t(self.params["p"], theta)
+        return _invert_monotonic(lambda t: _poly(c, t), lambda t: _poly_deriv(c, t), theta, self._rho_max, theta / c[0])
+
+    def theta_of_rho(self, rho):
+        return _poly(self._t(self.params["p"], rho), rho)
 
 
 # ---------------------------------------------------------------- unified camera models (Usenko et al. 2018)

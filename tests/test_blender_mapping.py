@@ -73,8 +73,12 @@ def test_blender_camera_matrix_with_ego_pose_is_world_matrix():
 def test_frame_conversion_round_trip_and_shape_check():
     np.testing.assert_allclose(opencv_camera_matrix(blender_camera_matrix(CAM_TO_EGO)), CAM_TO_EGO, atol=1e-15)
     np.testing.assert_array_equal(BLENDER_FROM_OPENCV @ BLENDER_FROM_OPENCV, np.eye(3))
-    with pytest.raises(ValueError, match="4x4"):
+    with pytest.raises(ValueError, match=r"cam_to_ego must have shape \(4, 4\), got \(3, 3\)"):
         blender_camera_matrix(np.eye(3))
+    with pytest.raises(ValueError, match=r"ego_pose must have shape \(4, 4\), got \(4,\)"):
+        blender_camera_matrix(CAM_TO_EGO, ego_pose=[1.0, 0.0, 0.0, 0.0])
+    with pytest.raises(ValueError, match=r"blender_matrix must have shape \(4, 4\)"):
+        opencv_camera_matrix(np.eye(4)[:3])
 
 
 # ---------------------------------------------------------------- OSL shader text
@@ -102,7 +106,7 @@ def test_osl_shader_bakes_model_limits():
     assert f"float theta_max = {cam.theta_max!r}" in src
     assert f"float rho_max = {cam.rho_max!r}" in src
     kb = _cam("kb_theta")
-    assert f"float r_max = {kb.r_max!r}" in osl_shader_source(kb)
+    assert f"float rho_max = {kb.rho_max!r}" in osl_shader_source(kb)
     assert "{1.0, -0.02, 0.05, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0}" in osl_shader_source(kb)
 
 

@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 import torch
 
-from geometry.cameras import MODELS, CameraError, camera_from_dict
+from geometry.cameras import MODELS, CameraError, RadialCamera, camera_from_dict
+from geometry.shapes import check_shape
 
 W, H = 480, 302
 BASE = dict(width=W, height=H, fx=145.0, fy=151.0, cx=241.3, cy=148.2)
@@ -183,8 +184,36 @@ def test_numpy_in_numpy_out_torch_in_torch_out_batched():
     uvt, validt = cam.project(torch.from_numpy(p).float())
     assert isinstance(uvt, torch.Tensor) and uvt.dtype == torch.float32 and uvt.shape == (2, 3, 4, 2)
     np.testing.assert_allclose(uvt.numpy()[valid], uv[valid], atol=1e-3)
-    with pytest.raises(ValueError, match=r"\(\.\.\., 3\)"):
+    with pytest.raises(ValueError, match=r"points must have shape \(\.\.\., 3\), got \(5, 2\)"):
         cam.project(np.zeros((5, 2)))
+    with pytest.raises(ValueError, match=r"uv must have shape \(\.\.\., 2\), got \(\)"):
+        cam.unproject(torch.tensor(1.0))
+
+
+def test_check_shape_sizes_names_and_ellipsis():
+    assert check_shape(np.zeros((4, 4)), (4, 4), "m").shape == (4, 4)
+    check_shape(torch.zeros(2, 7, 3), ("B", ..., 3), "x")
+    check_shape(torch.zeros(2, 3), ("B", ..., 3), "x")  # ... may be no dimensions
+    check_shape(np.zeros((2, 3, 5)), (2, ...), "x")
+    for a, shape, message in [
+        (np.zeros((3, 4)), (4, 4), r"m must have shape \(4, 4\), got \(3, 4\)"),
+        (np.zeros((4, 4, 1)), (4, 4), r"got \(4, 4, 1\)"),
+        (torch.zeros(2, 3), ("B", "N", 3), r"m must have shape \(B, N, 3\), got \(2, 3\)"),
+        (torch.zeros(3), (2, ..., 3), r"\(2, \.\.\., 3\), got \(3,\)"),
+        (np.zeros(5), (4,), r"\(4,\), got \(5,\)"),
+    ]:
+        with pytest.raises(ValueError, match=message):
+            check_shape(a, shape, "m")
+
+
+def test_kb_theta_is_a_radial_camera_whose_polynomial_is_theta_of_rho():
+    cam = camera_from_dict(CAMERAS["kb_theta"])
+    assert isinstance(cam, RadialCamera)
+    r = torch.linspace(0, cam.rho_max * 0.999, 50, dtype=torch.float64)
+    p1, p2, p3, p4 = CAMERAS["kb_theta"]["p"]
+    np.testing.assert_allclose(cam.theta_of_rho(r), p1 * r + p2 * r**2 + p3 * r**3 + p4 * r**4, rtol=1e-15, atol=0)
+    np.testing.assert_allclose(cam.rho(cam.theta_of_rho(r)), r, atol=1e-12)
+    assert cam.theta_of_rho(torch.tensor(cam.rho_max, dtype=torch.float64)) == pytest.approx(cam.theta_max)
 
 
 @pytest.mark.parametrize("name", CAMERAS)
