@@ -46,8 +46,8 @@ def test_entry_scripts_do_not_import_each_other_or_fixtures():
         assert not imported & (set(ENTRY_SCRIPTS) | {"testing"}) - {name}, f"{name}.py imports {imported}"
 
 
-# Contracts that fail on branch i20-lint alone and hold once the other issue-20 branches are merged. strict:
-# an XPASS fails the run, so delete an entry as soon as its contract holds.
+# Contracts broken on branch i20-lint alone (issue 20's other branches fix the imports named). strict: once
+# the contract holds, the XPASS fails the run, so that its entry here is deleted.
 AFTER_MERGE = {
     "format-base": "format/constructed.py (fixtures), format/index.py and format/merge.py import labels/qa",
     "dataset-tools-layers": "format imports labels/qa; labels/ray_fuse.py -> fuse -> generation -> qa",
@@ -57,7 +57,8 @@ AFTER_MERGE = {
 
 
 @pytest.mark.parametrize("contract", [
-    pytest.param(c, marks=pytest.mark.xfail(c in AFTER_MERGE, reason=AFTER_MERGE.get(c, ""), strict=True))
+    pytest.param(c, marks=pytest.mark.xfail(c in AFTER_MERGE, strict=True,
+                                            reason=f"until issue 20's branches merge (then delete from AFTER_MERGE): {AFTER_MERGE.get(c)}"))
     for c in _contract_ids()
 ])
 def test_contract_kept(contract):
