@@ -82,6 +82,9 @@ class FrameMeta:
         for k in d:
             if k not in known:
                 raise DatasetError(f"{path or 'meta.json'}: unknown field '{k}' (known: {', '.join(known)})")
+        for f in fields(cls):
+            if f.default is MISSING and f.name not in d:
+                raise DatasetError(f"{path or 'meta.json'}: missing field '{f.name}'")
         return cls(**d, path=Path(path) if path is not None else None)
 
     def to_dict(self) -> dict:
