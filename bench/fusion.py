@@ -15,7 +15,7 @@ GOAL_FPS = 20.0
 
 
 def scene_boxes():
-    from dataset_tools.format.constructed import Box
+    from testing.constructed import Box
 
     return [
         Box(6.0, 10.5, -3.2, -1.2, 0.0, 1.5, "vehicle", 3),
@@ -32,8 +32,10 @@ def run() -> dict:
 
     cv2.setNumThreads(1)
     torch.set_num_threads(1)
-    from dataset_tools.format.constructed import write_frame
-    from dataset_tools.labels.fusion import FusionConfig, fuse_frame, fuse_passes, load_frame_passes, write_labels
+    from dataset_tools.format.labels import write_labels
+    from dataset_tools.format.passes import read_frame_passes
+    from dataset_tools.labels.fusion import FusionConfig, fuse_frame, fuse_passes
+    from testing.constructed import write_frame
     from geometry.bev import BevGrid
     from geometry.rig import load_rig
 
@@ -42,11 +44,11 @@ def run() -> dict:
     cfg = FusionConfig()
     with tempfile.TemporaryDirectory() as tmp:
         frame = write_frame(Path(tmp) / "s/000000", rig, grid, scene_boxes())
-        meta, frig, cams, td = load_frame_passes(frame)
+        meta, frig, cams, td = read_frame_passes(frame)
         fuse_passes(frig, cams, td, grid, cfg)  # builds the ray tables
         t_mem = best_of(lambda: fuse_passes(frig, cams, td, grid, cfg))
         t_disk = best_of(lambda: write_labels(frame, fuse_frame(frame, cfg)))
-        t_read = best_of(lambda: load_frame_passes(frame))
+        t_read = best_of(lambda: read_frame_passes(frame))
         write_labels(frame, fuse_frame(frame, cfg))
         from dataset_tools.qa.audit import audit_frame
 

@@ -262,7 +262,7 @@ def _in_child(fn: str, *args) -> dict:
 
 
 def run(train_steps: int = 12, infer_repeat: int = 20) -> dict:
-    from model.toy_data import write_toy_dataset
+    from testing.toy_data import write_toy_dataset
 
     res = {"threads": torch.get_num_threads(), "load_average_1min_at_start": os.getloadavg()[0]}
     res.update(bench_splat(sum_cameras=True))

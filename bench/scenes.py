@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
+from dataset_tools.format.meta import read_meta
 from dataset_tools.generation.config import REPO, load_config
 from dataset_tools.generation.driver import run as generate
 
@@ -31,10 +32,10 @@ def run(frames: int = FRAMES, scenes=SCENES) -> dict:
         wall = time.perf_counter() - t0
         if rc:
             raise RuntimeError("bench.scenes: generation failed")
-        metas = [json.loads(p.read_text()) for p in sorted(Path(tmp).glob("*/*/meta.json"))]
+        metas = [read_meta(p.parent) for p in sorted(Path(tmp).glob("*/*/meta.json"))]
     # the first frame of a scene also builds the BVH and compiles shaders: report it apart
-    steady = [m["timings"] for m in metas if m["frame"] > 0]
-    first = [m["timings"] for m in metas if m["frame"] == 0]
+    steady = [m.timings for m in metas if m.frame > 0]
+    first = [m.timings for m in metas if m.frame == 0]
     mean = lambda rows, k: float(np.mean([r[k] for r in rows])) if rows else float("nan")  # noqa: E731
     return {
         "preset": "small",

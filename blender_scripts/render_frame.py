@@ -19,10 +19,10 @@ from pathlib import Path
 import bpy
 import numpy as np
 
-from dataset_tools.format.exr import read_exr, write_exr, write_png_atomic
+from dataset_tools.format.exr import read_exr, write_exr
 from dataset_tools.format.layout import FrameFiles
 from dataset_tools.labels.classes import CLASS_IDS
-from dataset_tools.format.reader import read_png
+from dataset_tools.format.png import read_png, write_png_atomic
 from dataset_tools.labels.coverage import reduce_supersampled
 
 from .camera import use_camera

@@ -31,8 +31,8 @@ def frame_seed(scene_seed: int, frame: int) -> int:
 def run_task(task: dict, state: dict) -> None:
     import bpy  # noqa: F401  (first import starts Blender)
 
-    from common.files import write_json_atomic
-    from dataset_tools.format.layout import FrameFiles, frame_dir_name
+    from dataset_tools.format.layout import frame_dir_name
+    from dataset_tools.format.meta import FrameMeta, write_meta
     from geometry.bev import BevGrid
     from geometry.rig import load_rig
 
@@ -98,7 +98,7 @@ def run_task(task: dict, state: dict) -> None:
         # frame_s: this frame's posing, renders and writes (meta.json's own write, ~1 ms, excluded)
         meta["timings"] = dict(timings, build_s=t_build, frame_s=time.perf_counter() - t0)
         t_build = 0.0
-        write_json_atomic(FrameFiles(frame_dir).meta, meta)
+        write_meta(frame_dir, FrameMeta(**meta))
         files = sorted(p.name for p in frame_dir.iterdir() if not p.name.startswith("."))
         say(event="frame", scene=task["scene"], frame=frame, files=files, timings=meta["timings"])
 

@@ -11,8 +11,9 @@ The modules at this level are the commands (`python -m dataset_tools.<command>`)
     idx = DatasetIndex("data/small"); f = read_frame(idx.frames("train")[0])
 """
 
+from .format.labels import read_labels
 from .format.layout import SPLITS, DatasetError, FrameFiles, Manifest
-from .format.reader import DatasetIndex, FrameRef, downsample_labels, read_frame, read_labels
+from .format.reader import DatasetIndex, FrameRef, downsample_labels, read_frame
 from .labels.classes import TRAIN_CLASSES, TRAIN_PALETTE, colorize, colorize_train
 
 __all__ = ["DatasetIndex", "FrameRef", "read_frame", "read_labels", "downsample_labels", "DatasetError",

@@ -21,9 +21,10 @@ from common.files import clean_stale_temps
 from common.lock import hold_lock
 
 from .format.index import build_index, write_index
+from .format.labels import write_labels
 from .format.layout import DatasetError, FrameFiles, Manifest
 from .generate import add_backend_args
-from .labels.fusion import FusionConfig, fuse_frame, write_labels
+from .labels.fusion import FusionConfig, fuse_frame
 
 _WORKER_CFG: FusionConfig | None = None
 

@@ -284,11 +284,12 @@ def nan_distance(ctx, ds):
 
 add("fuse-distance-nan", "fuse", on_ds("--force", "--no-progress", edit=nan_distance), code=1, needles=("cam_front.exr", "distance", "NaN"))
 
-INDEX_BAD = [("splits-list", '{"class_names": ["a", "b"], "grid": {"bound": 25, "res": 0.5}, "splits": []}', "splits"),
+INDEX_BAD = [("splits-list", '{"version": 1, "class_names": ["a", "b"], "grid": {"bound": 25, "res": 0.5}, "splits": []}', "splits"),
              ("not-object", "[1]", "JSON object"),
              ("not-json", "{", "JSON"),
-             ("class-names-empty", '{"class_names": [], "grid": {}, "splits": {}}', "class_names"),
-             ("split-entry-escapes", '{"class_names": ["a"], "grid": {}, "splits": {"train": [{"dir": "../x", "scene": "s", "frame": 0}]}}', "splits.train[0]")]
+             ("class-names-empty", '{"version": 1, "class_names": [], "grid": {}, "splits": {}}', "class_names"),
+             ("split-entry-escapes", '{"version": 1, "class_names": ["a"], "grid": {}, "splits": {"train": [{"dir": "../x", "scene": "s", "frame": 0}]}}', "splits.train[0]"),
+             ("version-other", '{"version": 2, "class_names": ["a"], "grid": {}, "splits": {}}', "version")]
 for _id, _text, _field in INDEX_BAD:
     add(f"stats-index-{_id}", "stats", on_ds("--no-cameras", edit=index_json(_text)), needles=("index.json", _field))
     add(f"consistency-index-{_id}", "consistency", on_ds(edit=index_json(_text)), needles=("index.json", _field))

@@ -16,7 +16,9 @@ import yaml
 
 from dataset_tools.format.exr import read_exr
 from dataset_tools.format.layout import RECIPES_DIR, FrameFiles
-from dataset_tools.format.reader import read_png
+from dataset_tools.format.meta import read_meta
+from dataset_tools.format.passes import read_frame_passes
+from dataset_tools.format.png import read_png
 from dataset_tools.generation.recipe import load_recipe
 from dataset_tools.labels import fusion
 from dataset_tools.labels.classes import CLASS_IDS, DEFAULT_CLASS_MAP
@@ -64,8 +66,8 @@ def test_written_recipe_renders_the_scene_again_alone(sampled, tmp_path):
 
 def test_ego_body_in_every_camera_never_in_labels_or_counts(sampled):
     files = FrameFiles(sampled / "s5_0000" / "000000")
-    meta = json.loads(files.meta.read_text())
-    box = meta["ego"]["box"]
+    meta = read_meta(files.dir)
+    box = meta.ego["box"]
     assert box[0] < box[1] and box[2] < box[3] and fusion.ego_box(meta, fusion.FusionConfig()) == tuple(box)
     for name in files.camera_names():
         ch = read_exr(files.camera_exr(name))
@@ -79,8 +81,8 @@ def test_ego_body_in_every_camera_never_in_labels_or_counts(sampled):
     # labels: the ego class maps to invalid; its footprint is invalid; its pixels are never counted
     cfg = fusion.FusionConfig()
     assert DEFAULT_CLASS_MAP["ego"] == "invalid" and cfg.group_lut()[EGO] == 0
-    meta, rig, cameras, topdown = fusion.load_frame_passes(files.dir)
-    grid = fusion.frame_grid(meta, files.dir)
+    meta, rig, cameras, topdown = read_frame_passes(files.dir)
+    grid = meta.grid()
     out = fusion.fuse_passes(rig, cameras, topdown, grid, cfg, fusion.ego_box(meta, cfg))
     foot = fusion.ego_mask(grid, box)
     assert foot.any() and (out["semantic"][foot] == 0).all() and (out["visibility"][foot] == 0).all()

@@ -1,22 +1,23 @@
 """Label fidelity: visibility never crosses an occlusion, thin markings are labelled by coverage,
 and the line-of-sight audit agrees with an exact analytic shadow.
 
-Fast checks run on constructed frames ray-cast without Blender (dataset_tools.format.constructed);
-the proof renders the same kind of geometry in real Blender (blender_scripts.constructed, one
+Fast checks run on constructed frames ray-cast without Blender (testing.constructed); the proof
+renders the same kind of geometry in real Blender (testing.blender_constructed, one
 sample, small images) and reads it back through fusion and the audit.
 """
 
 import numpy as np
 import pytest
 
-from dataset_tools.format.constructed import Box, write_frame
-from dataset_tools.format.reader import read_meta
+from dataset_tools.format.meta import read_meta
+from dataset_tools.format.passes import read_topdown
 from dataset_tools.labels.classes import CLASS_IDS
 from dataset_tools.labels.coverage import reduce_supersampled
-from dataset_tools.labels.fusion import FusionConfig, effective_min_pixels, effective_tau, fuse_frame, read_topdown
+from dataset_tools.labels.fusion import FusionConfig, effective_min_pixels, effective_tau, fuse_frame
 from dataset_tools.qa.audit import audit_labels
 from geometry.bev import BevGrid
 from geometry.rig import Rig, load_rig
+from testing.constructed import Box, write_frame
 
 LANE = 2
 KERB = Box(12.0, 12.25, -10.0, -6.0, 0.0, 0.15, "curb", 5)
@@ -122,10 +123,10 @@ def test_audit_agrees_with_the_analytic_shadow_and_catches_leaks(tmp_path, front
 def test_audit_command_writes_audit_json_and_validate_fails_on_threshold(tmp_path, front, grid, capsys):
     import json
 
-    from dataset_tools.format.constructed import write_dataset
     from dataset_tools.format.index import build_index, write_index
-    from dataset_tools.labels.fusion import write_labels
+    from dataset_tools.format.labels import write_labels
     from dataset_tools.qa import audit, validate
+    from testing.constructed import write_dataset
 
     root = write_dataset(tmp_path / "ds", front, grid, [("s", 0, "train", [KERB, *CARS])])
     write_labels(root / "s/000000", fuse_frame(root / "s/000000"))
@@ -175,7 +176,7 @@ LINE = (5.0, 10.0, -4.05, -3.95)  # 10 cm wide, between the cell centres at y -4
 
 @pytest.fixture(scope="module")
 def blender_frame(tmp_path_factory, front, grid):
-    from blender_scripts.constructed import render_boxes_frame
+    from testing.blender_constructed import render_boxes_frame
 
     tmp = tmp_path_factory.mktemp("fidelity")
     rig = front.map_cameras(lambda c: c.resized(240, 151))
@@ -186,7 +187,7 @@ def blender_frame(tmp_path_factory, front, grid):
 
 def test_blender_kerb_and_parked_cars_cast_no_visible_cells(blender_frame, grid):
     d, rig, _ = blender_frame
-    assert read_meta(d)["topdown"]["supersample"] == 2
+    assert read_meta(d).topdown["supersample"] == 2
     vis, shadow, inner, audit = shadow_checks(d, rig, grid, [KERB, *CARS])
     print(f"deep shadow cells {inner.sum()}, max p there {vis[inner].max():.3f}; audit {audit['visible_no_los']:.4f}"
           f" visible with no line of sight, {audit['beyond_kernel_cells']} beyond the kernel")

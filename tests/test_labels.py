@@ -1,15 +1,18 @@
 """Label fusion on constructed frames: a plane and boxes ray-cast through the rig's camera models,
-written as real EXR files, fused by dataset_tools.fuse and read back by dataset_tools.format.reader."""
+written as real EXR files (testing.constructed), fused by dataset_tools.fuse and read back by
+dataset_tools.format.reader."""
 
 import numpy as np
 import pytest
 
 from dataset_tools.labels.classes import CLASS_IDS, class_lut
-from dataset_tools.format.constructed import Box, render_camera, write_dataset, write_frame
-from dataset_tools.labels.fusion import FusionConfig, fuse_frame, write_labels
+from dataset_tools.format.labels import write_labels
+from dataset_tools.format.passes import read_topdown
 from dataset_tools.format.reader import DatasetIndex, downsample_labels, read_frame
+from dataset_tools.labels.fusion import FusionConfig, fuse_frame
 from geometry.bev import BevGrid
 from geometry.rig import Rig, load_rig
+from testing.constructed import Box, render_camera, write_dataset, write_frame
 
 STREET, LANE, VEHICLE, BACKGROUND, INVALID = 3, 2, 1, 4, 0
 
@@ -57,8 +60,6 @@ def test_cells_under_canopy_are_street_not_vegetation(tmp_path, rig, grid):
     canopy = Box(5.0, 12.0, -3.0, 3.0, 4.0, 6.0, "canopy", 7)
     d = write_frame(tmp_path / "canopy", rig, grid, [canopy])
     lab = fuse_frame(d)
-    from dataset_tools.labels.fusion import read_topdown
-
     td = read_topdown(d)
     under = cells(grid, 5.1, 11.9, -2.9, 2.9)
     first_hit = class_lut()[td["semantic_all"]]

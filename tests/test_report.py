@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from dataset_tools.format.layout import AUDIT, REPORT_DIR, FrameFiles
-from dataset_tools.format.reader import read_png
+from dataset_tools.format.png import read_png
 from dataset_tools.qa.report import build_report, report_size
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -1,4 +1,5 @@
-"""Small OpenEXR helpers: write named channels atomically, read them back as a dict.
+"""Small OpenEXR helpers: write named channels atomically, read them back as a dict (read_exr_checked:
+a missing or damaged file is one DatasetError line).
 
 Channel dtypes are kept: float16 (half), float32, uint32 (integer labels stay exact).
 A multi-layer file is just dotted channel names ("all.semantic", "position.X").
@@ -6,12 +7,17 @@ A multi-layer file is just dotted channel names ("all.semantic", "position.X").
 
 from __future__ import annotations
 
+import os
+import sys
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
 import OpenEXR
 
-from common.files import write_bytes_atomic, write_with
+from common.files import write_with
+
+from .layout import DatasetError
 
 _DTYPES = (np.float16, np.float32, np.uint32)
 
@@ -51,18 +57,32 @@ def read_exr(path, part: int = 0) -> dict[str, np.ndarray]:
     return out
 
 
-def encode_png(a: np.ndarray) -> bytes:
-    """A PNG of a 2D (gray, uint8 or uint16) or (H, W, 3) RGB array, with no text chunks (no date),
-    so equal pixels give equal bytes."""
-    import cv2
+@contextmanager
+def _quiet_c_output():
+    """Silence what the OpenEXR C++ library prints on a damaged file (its error comes back as an
+    exception, which we report as one line)."""
+    sys.stdout.flush()
+    sys.stderr.flush()
+    saved = [os.dup(1), os.dup(2)]
+    null = os.open(os.devnull, os.O_WRONLY)
+    try:
+        os.dup2(null, 1)
+        os.dup2(null, 2)
+        yield
+    finally:
+        os.dup2(saved[0], 1)
+        os.dup2(saved[1], 2)
+        for fd in (*saved, null):
+            os.close(fd)
 
-    a = np.ascontiguousarray(a[..., ::-1] if a.ndim == 3 else a)
-    ok, buf = cv2.imencode(".png", a)
-    if not ok:
-        raise OSError(f"PNG encoding failed for an array of {a.shape} {a.dtype}")
-    return buf.tobytes()
 
-
-def write_png_atomic(path, image: np.ndarray) -> None:
-    """RGB uint8 (H, W, 3) or one-channel uint8/uint16 (H, W) -> PNG, atomically."""
-    write_bytes_atomic(path, encode_png(image))
+def read_exr_checked(path) -> dict:
+    """Every channel of an EXR; a missing or damaged file is one DatasetError line."""
+    path = Path(path)
+    if not path.is_file():
+        raise DatasetError(f"{path}: missing")
+    try:
+        with _quiet_c_output():
+            return read_exr(path)
+    except Exception as exc:  # OpenEXR raises plain Exceptions on damaged files
+        raise DatasetError(f"{path}: not a readable EXR (truncated or corrupt: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__})") from None

@@ -1,39 +1,23 @@
-"""Build `<dataset>/index.json` from the manifest: splits -> frame dirs, class names, grid, rig.
+"""`<dataset>/index.json`: splits -> frame dirs, class names, grid, rig. One builder (from the
+manifest), one writer and one reader (which checks the version and the fields).
 
 The split of each frame comes from its manifest line (the scene recipe decides it: train, easy,
-medium, hard). The rig is the calibration stored in the first frame's meta.json. The command is
-`python -m dataset_tools.index <dataset>`.
+medium, hard). The rig is the nominal calibration stored in the first frame's meta.json. The
+command is `python -m dataset_tools.index <dataset>`.
 """
 
 from __future__ import annotations
 
 from pathlib import Path
 
-from common.files import write_json_atomic
+from common.files import read_json, write_json_atomic
 
-from ..labels.classes import TRAIN_CLASSES
-from .layout import INDEX, MANIFEST, SPLITS, DatasetError, Manifest, read_meta
+from .layout import INDEX, MANIFEST, SPLITS, DatasetError, Manifest
+from .meta import read_meta
 
-DEFAULT_GRID = {"x_min": -25.0, "x_max": 25.0, "y_min": -25.0, "y_max": 25.0, "res": 0.125}
-
-
-def meta_rig(meta: dict, key: str = "rig"):
-    """The rig calibration dict stored in a frame's meta.json (None if absent): `rig` the frame's
-    own, `rig_nominal` the rig before the scene's jitter (older frames: their `rig`)."""
-    r = meta.get(key) if key in meta else meta.get("rig")
-    return r if isinstance(r, dict) and isinstance(r.get("cameras"), dict) else None
-
-
-def meta_weather(meta: dict) -> str:
-    w = meta.get("weather", "")
-    if isinstance(w, dict):
-        w = w.get("preset", "")
-    return str(w)
-
-
-def meta_grid(meta: dict):
-    g = (meta.get("topdown") or {}).get("grid") if isinstance(meta.get("topdown"), dict) else None
-    return g if isinstance(g, dict) and "res" in g else None
+INDEX_VERSION = 1  # bump when the layout of index.json changes
+# The paper's training classes: the class names of an index built without a fusion config.
+DEFAULT_CLASS_NAMES = ("invalid", "vehicle", "lane_marking", "street", "background")
 
 
 def build_index(root, class_names=None) -> dict:
@@ -45,25 +29,60 @@ def build_index(root, class_names=None) -> dict:
     rig = grid = None
     for e in entries:
         meta = read_meta(root / e["dir"])
-        rig = rig or meta_rig(meta, "rig_nominal")
-        grid = grid or meta_grid(meta)
-        weather = e.get("weather") or meta_weather(meta)
+        rig = rig or meta.nominal_rig
+        grid = grid or meta.topdown["grid"]
+        weather = e.get("weather") or meta.weather_preset
         entry = {"dir": str(e["dir"]), "scene": str(e["scene"]), "frame": e["frame"], "weather": str(weather)}
-        if meta_rig(meta) is not None and meta_rig(meta) != rig:
+        if meta.rig != rig:
             entry["own_rig"] = True  # a per-frame rig (jittered): the reader lifts with meta.json's
         splits.setdefault(str(e["split"]), []).append(entry)
-    index = {
-        "version": 1,
-        "class_names": list(class_names or TRAIN_CLASSES),
-        "grid": grid or dict(DEFAULT_GRID),
+    return {
+        "version": INDEX_VERSION,
+        "class_names": list(class_names or DEFAULT_CLASS_NAMES),
+        "grid": grid,
         "splits": splits,
+        "rig": rig,
     }
-    if rig is not None:
-        index["rig"] = rig
-    return index
 
 
 def write_index(root, index: dict) -> Path:
     path = Path(root) / INDEX
     write_json_atomic(path, index)
     return path
+
+
+def check_index(index, path) -> dict:
+    """`index` (the parsed index.json at `path`) if its version and fields are right, else one
+    DatasetError line naming the field."""
+    if not isinstance(index, dict):
+        raise DatasetError(f"{path}: must be a JSON object")
+    if index.get("version") != INDEX_VERSION:
+        raise DatasetError(f"{path}: field 'version' is {index.get('version')!r}, this code reads version {INDEX_VERSION} "
+                           f"(rebuild it: python -m dataset_tools.index {Path(path).parent})")
+    for key, kind in (("splits", dict), ("class_names", list), ("grid", dict)):
+        if not isinstance(index.get(key), kind):
+            raise DatasetError(f"{path}: field '{key}' missing or not a {'mapping' if kind is dict else 'list'}")
+    if not index["class_names"] or not all(isinstance(n, str) for n in index["class_names"]):
+        raise DatasetError(f"{path}: field 'class_names' must be a list of names")
+    if "rig" in index and not isinstance(index["rig"], dict):
+        raise DatasetError(f"{path}: field 'rig' must be a mapping (the rig calibration)")
+    for split, entries in index["splits"].items():
+        if not isinstance(entries, list):
+            raise DatasetError(f"{path}: splits.{split}: must be a list of frames")
+        for n, e in enumerate(entries):
+            try:
+                d = Path(e["dir"])
+                str(e["scene"]), int(e["frame"])
+            except (KeyError, TypeError, ValueError):
+                d = None
+            if d is None or d.is_absolute() or ".." in d.parts:
+                raise DatasetError(f"{path}: splits.{split}[{n}]: needs 'dir', 'scene' and 'frame'")
+    return index
+
+
+def read_index(root) -> dict:
+    """`<root>/index.json`, checked (check_index); DatasetError when missing or bad."""
+    path = Path(root) / INDEX
+    if not path.is_file():
+        raise DatasetError(f"{path}: missing (python -m dataset_tools.index {root})")
+    return check_index(read_json(path, DatasetError), path)

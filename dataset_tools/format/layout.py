@@ -1,5 +1,7 @@
 """The one place that names the files of a data set and of a frame, and reads and appends the
-manifest.
+manifest. Each other file has one writer and reader in this package: meta.json `format.meta`,
+label PNGs `format.labels`, index.json `format.index`, audit.json `format.audit`, EXR passes
+`format.passes` (through `format.exr`).
 
     <dataset>/
       manifest.jsonl            one JSON line per finished frame (written last, by the driver only)
@@ -26,7 +28,6 @@ import threading
 from pathlib import Path
 
 from common.errors import InputError
-from common.files import read_json
 
 MANIFEST = "manifest.jsonl"
 INDEX = "index.json"
@@ -85,21 +86,6 @@ class FrameFiles:
 
     def labels_done(self) -> bool:
         return all(p.is_file() and p.stat().st_size > 0 for p in self.label_paths())
-
-    def rendered_files(self, cameras) -> list[str]:
-        """The files (relative to the frame) a finished render has, in manifest order."""
-        return [f"cam_{n}.{ext}" for n in cameras for ext in ("exr", "png")] + [TOPDOWN_EXR, META]
-
-
-def read_meta(frame_dir) -> dict:
-    """A frame's meta.json ({} when the frame has none); anything but a JSON object is refused."""
-    path = FrameFiles(frame_dir).meta
-    if not path.is_file():
-        return {}
-    meta = read_json(path, DatasetError)
-    if not isinstance(meta, dict):
-        raise DatasetError(f"{path}: must be a JSON object")
-    return meta
 
 
 def _complete_lines(path: Path) -> list[bytes]:

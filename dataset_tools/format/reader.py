@@ -14,13 +14,13 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-import cv2
 import numpy as np
 
-from common.files import read_json
-
-from .index import build_index
-from .layout import INDEX, MANIFEST, VISIBILITY_SCALE, DatasetError, FrameFiles, Manifest, frame_dir_name, read_meta
+from .index import build_index, check_index, read_index
+from .labels import read_labels
+from .layout import INDEX, MANIFEST, DatasetError, FrameFiles, Manifest, frame_dir_name
+from .meta import FrameMeta, read_meta
+from .png import read_png
 
 @dataclass(frozen=True)
 class FrameRef:
@@ -44,35 +44,17 @@ class DatasetIndex:
         self.root = Path(root)
         path = self.root / INDEX
         if path.is_file():
-            self.data = read_json(path, DatasetError)
+            self.data = read_index(self.root)
         elif Manifest(self.root).exists():
-            self.data = build_index(self.root)
+            self.data = check_index(build_index(self.root), path)
         else:
             raise DatasetError(f"{path}: missing (and no {MANIFEST} to build it from)")
-        if not isinstance(self.data, dict):
-            raise DatasetError(f"{path}: must be a JSON object")
-        for key, kind in (("splits", dict), ("class_names", list), ("grid", dict)):
-            if not isinstance(self.data.get(key), kind):
-                raise DatasetError(f"{path}: field '{key}' missing or not a {'mapping' if kind is dict else 'list'}")
-        if not self.data["class_names"] or not all(isinstance(n, str) for n in self.data["class_names"]):
-            raise DatasetError(f"{path}: field 'class_names' must be a list of names")
         self.class_names: list[str] = list(self.data["class_names"])
-        self.splits: dict[str, list[FrameRef]] = {}
-        for split, entries in self.data["splits"].items():
-            if not isinstance(entries, list):
-                raise DatasetError(f"{path}: splits.{split}: must be a list of frames")
-            refs = []
-            for n, e in enumerate(entries):
-                try:
-                    refs.append(
-                        FrameRef(self.root / e["dir"], str(e["scene"]), int(e["frame"]), split, str(e.get("weather", "")),
-                                 bool(e.get("own_rig", False)))
-                    )
-                    if Path(e["dir"]).is_absolute() or ".." in Path(e["dir"]).parts:
-                        raise ValueError
-                except (KeyError, TypeError, ValueError):
-                    raise DatasetError(f"{path}: splits.{split}[{n}]: needs 'dir', 'scene' and 'frame'") from None
-            self.splits[split] = refs
+        self.splits: dict[str, list[FrameRef]] = {
+            split: [FrameRef(self.root / e["dir"], str(e["scene"]), int(e["frame"]), split, str(e.get("weather", "")),
+                             bool(e.get("own_rig", False))) for e in entries]
+            for split, entries in self.data["splits"].items()
+        }
         self._rig = None
 
     def frames(self, split: str) -> list[FrameRef]:
@@ -107,41 +89,9 @@ class DatasetIndex:
         return f"DatasetIndex({self.root}, {sizes})"
 
 
-def read_png(path, dtype=None, channels: int | None = None) -> np.ndarray:
-    """A PNG as stored (uint8 or uint16; RGB order for colour); checks dtype and channel count."""
-    path = Path(path)
-    if not path.is_file():
-        raise DatasetError(f"{path}: missing")
-    a = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if a is None:
-        raise DatasetError(f"{path}: not a readable PNG")
-    if a.ndim == 3:
-        a = a[..., 2::-1] if a.shape[2] >= 3 else a
-    if dtype is not None and a.dtype != np.dtype(dtype):
-        raise DatasetError(f"{path}: pixel type {a.dtype}, expected {np.dtype(dtype)}")
-    if channels is not None and (1 if a.ndim == 2 else a.shape[2]) != channels:
-        raise DatasetError(f"{path}: {1 if a.ndim == 2 else a.shape[2]} channels, expected {channels}")
-    return np.ascontiguousarray(a)
-
-
-def read_labels(frame_dir, num_classes: int | None = None) -> dict:
-    """semantic (H, W) uint8, instance (H, W) uint16, visibility (H, W) float32 in [0, 1]. With
-    `num_classes`, a semantic id >= num_classes is refused (DatasetError naming the PNG)."""
-    f = FrameFiles(frame_dir)
-    d = f.labels
-    sem = read_png(f.semantic, np.uint8, 1)
-    ins = read_png(f.instance, np.uint16, 1)
-    vis = read_png(f.visibility, np.uint16, 1)
-    if num_classes is not None and sem.max(initial=0) >= num_classes:
-        raise DatasetError(f"{f.semantic}: class id {int(sem.max())}, beyond the {num_classes} classes of the data set")
-    if not sem.shape == ins.shape == vis.shape:
-        raise DatasetError(f"{d}: label shapes differ (semantic {sem.shape}, instance {ins.shape}, visibility {vis.shape})")
-    return {"semantic": sem, "instance": ins, "visibility": vis.astype(np.float32) / VISIBILITY_SCALE}
-
-
 def read_frame(ref, cameras=None, num_classes: int | None = None) -> dict:
     """One frame: images {name: (H, W, 3) uint8 RGB}, semantic (uint8), instance (uint16),
-    visibility (float32 in [0, 1]) and meta (dict). `ref` is a FrameRef or a frame directory;
+    visibility (float32 in [0, 1]) and meta (FrameMeta). `ref` is a FrameRef or a frame directory;
     `cameras` picks camera names (default: every cam_<name>.png of the frame); `num_classes`
     refuses semantic ids beyond it."""
     files = FrameFiles(ref.dir if isinstance(ref, FrameRef) else ref)
@@ -154,17 +104,10 @@ def read_frame(ref, cameras=None, num_classes: int | None = None) -> dict:
     return out
 
 
-def rig_of_frame(ref, meta: dict, nominal):
+def rig_of_frame(ref, meta: FrameMeta, nominal):
     """The rig a frame was rendered with: its meta.json `rig` when the index marks it `own_rig`,
     else `nominal`."""
-    if not getattr(ref, "own_rig", False):
-        return nominal
-    from geometry.rig import RigError, rig_from_dict
-
-    try:
-        return rig_from_dict(meta.get("rig"), f"{FrameFiles(ref.dir).meta}: rig")
-    except RigError as exc:
-        raise DatasetError(str(exc)) from None
+    return meta.camera_rig() if getattr(ref, "own_rig", False) else nominal
 
 
 def downsample_labels(semantic: np.ndarray, visibility: np.ndarray, factor: int, priority=(2, 1), num_classes: int = 5):

@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..format.index import DEFAULT_CLASS_NAMES
+
 # id, name, overhead occluder?, colour for pictures (RGB 0-255)
 FINE_CLASSES = [
     (0, "unlabelled", False, (0, 0, 0)),  # sky / nothing hit
@@ -37,8 +39,8 @@ NUM_FINE_CLASSES = len(FINE_CLASSES)
 OVERHEAD_OCCLUDERS = frozenset(cid for cid, _, occ, _ in FINE_CLASSES if occ)
 PALETTE = np.array([c for _, _, _, c in FINE_CLASSES], dtype=np.uint8)
 
-# The paper's training classes.
-TRAIN_CLASSES = ["invalid", "vehicle", "lane_marking", "street", "background"]
+# The paper's training classes (named in the data format: index.json's default class_names).
+TRAIN_CLASSES = list(DEFAULT_CLASS_NAMES)
 
 DEFAULT_CLASS_MAP = {
     "unlabelled": "invalid",

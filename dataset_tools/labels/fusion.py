@@ -10,22 +10,18 @@ Per frame, from the renders of dataset_tools.generate:
 
 from __future__ import annotations
 
-import os
-import sys
-from contextlib import contextmanager
-from dataclasses import asdict, dataclass, field
-from functools import lru_cache
-from pathlib import Path
+import copy
+from dataclasses import asdict, dataclass, field, make_dataclass
 
 import numpy as np
 
 from common.errors import ConfigError
-from common.files import read_yaml, write_bytes_atomic
+from common.files import read_yaml
 from common.schema import List, Mapping, Name, Num, Section, Str
 
-from ..format.exr import encode_png, read_exr
-from ..format.layout import VISIBILITY_SCALE, DatasetError, FrameFiles
-from ..format.reader import read_meta
+from ..format.layout import DatasetError, FrameFiles
+from ..format.meta import FrameMeta
+from ..format.passes import read_frame_passes
 from . import visibility as V
 from .classes import CLASS_IDS, DEFAULT_CLASS_MAP, NUM_FINE_CLASSES, TRAIN_CLASSES, class_lut
 
@@ -63,23 +59,19 @@ FUSION_SCHEMA = Section({
 })
 
 
-@dataclass
-class FusionConfig:
-    """Label fusion settings (FUSION_SCHEMA; the `labels:` section of a dataset config)."""
+# FusionConfig's fields and defaults are FUSION_SCHEMA's (stated once, there)
+_FusionFields = make_dataclass("_FusionFields", [
+    (name, object, field(default_factory=lambda f=f: copy.deepcopy(f.default))) for name, f in FUSION_SCHEMA.fields.items()
+])
 
-    tau: float = 8.0
-    kernel_radius_m: float = 0.5
-    reference_pixels: int | None = 480 * 302
-    spread_step_m: float = 0.25
-    spread_z_tol_m: float = 0.05
-    spread_max_grade: float = 0.02
-    spread_min_grazing_deg: float = 15.0
-    min_vehicle_pixels: int = 20
-    class_map: dict = field(default_factory=lambda: dict(DEFAULT_CLASS_MAP))
-    class_names: list = field(default_factory=lambda: list(TRAIN_CLASSES))
-    ground_classes: tuple = GROUND_CLASSES
-    vehicle_classes: tuple = VEHICLE_CLASSES
-    ego_box: tuple | None = None
+
+@dataclass
+class FusionConfig(_FusionFields):
+    """Label fusion settings: a field per FUSION_SCHEMA entry (the `labels:` section of a dataset
+    config), with its default. `from_dict`/`load` validate; the constructor takes values as given."""
+
+    def __post_init__(self):
+        self.ground_classes, self.vehicle_classes = tuple(self.ground_classes), tuple(self.vehicle_classes)
 
     @classmethod
     def from_dict(cls, d: dict | None, source: str = "labels") -> "FusionConfig":
@@ -91,7 +83,6 @@ class FusionConfig:
             class_lut(cfg["class_map"], cfg["class_names"])
         except ValueError as exc:
             raise ConfigError(f"{source}: class_map: {exc}") from None
-        cfg["ground_classes"], cfg["vehicle_classes"] = tuple(cfg["ground_classes"]), tuple(cfg["vehicle_classes"])
         return cls(**cfg)
 
     @classmethod
@@ -119,137 +110,15 @@ class FusionConfig:
         return lut
 
 
-# ---------------------------------------------------------------- reading the passes
+# ---------------------------------------------------------------- the ego body
 
 
-def find_channel(channels: dict, path, *names, required=True):
-    """The channel whose name (or its last dotted part, or its layer with one channel) is one of
-    `names`, case-insensitively."""
-    low = {k.lower(): k for k in channels}
-    for n in names:
-        n = n.lower()
-        if n in low:
-            return channels[low[n]]
-        hits = [k for lk, k in low.items() if lk.rsplit(".", 1)[-1] == n or lk.split(".", 1)[0] == n]
-        if len(hits) == 1:
-            return channels[hits[0]]
-    if required:
-        raise DatasetError(f"{path}: no channel '{names[0]}' (has: {', '.join(sorted(channels))})")
-    return None
-
-
-@contextmanager
-def _quiet_c_output():
-    """Silence what the OpenEXR C++ library prints on a damaged file (its error comes back as an
-    exception, which we report as one line)."""
-    sys.stdout.flush()
-    sys.stderr.flush()
-    saved = [os.dup(1), os.dup(2)]
-    null = os.open(os.devnull, os.O_WRONLY)
-    try:
-        os.dup2(null, 1)
-        os.dup2(null, 2)
-        yield
-    finally:
-        os.dup2(saved[0], 1)
-        os.dup2(saved[1], 2)
-        for fd in (*saved, null):
-            os.close(fd)
-
-
-def read_exr_checked(path) -> dict:
-    """Every channel of an EXR; a missing or damaged file is one DatasetError line."""
-    path = Path(path)
-    if not path.is_file():
-        raise DatasetError(f"{path}: missing")
-    try:
-        with _quiet_c_output():
-            return read_exr(path)
-    except Exception as exc:  # OpenEXR raises plain Exceptions on damaged files
-        raise DatasetError(f"{path}: not a readable EXR (truncated or corrupt: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__})") from None
-
-
-def _labels_int(a, path, what) -> np.ndarray:
-    a = np.asarray(a)
-    if a.dtype.kind == "f":
-        if not np.all(np.isfinite(a)):
-            raise DatasetError(f"{path}: channel '{what}' has NaN or inf")
-        a = np.rint(a)
-    return a.astype(np.int64)
-
-
-def read_camera_passes(path) -> dict:
-    """distance (H, W) float32, semantic and instance (H, W) int64 from a cam_<name>.exr."""
-    ch = read_exr_checked(path)
-    dist = find_channel(ch, path, "distance")
-    if np.isnan(dist).any():
-        raise DatasetError(f"{path}: channel 'distance' has NaN")
-    return {
-        "distance": np.asarray(dist, np.float32),
-        "semantic": _labels_int(find_channel(ch, path, "semantic"), path, "semantic"),
-        "instance": _labels_int(find_channel(ch, path, "instance"), path, "instance"),
-    }
-
-
-def read_topdown(frame_dir) -> dict:
-    """Top-down passes: semantic/instance with overhead occluders hidden ('semantic', 'instance',
-    from the 'ground.' layer) and as first seen from above ('semantic_all', 'instance_all', from
-    'all.'), (rows, cols) int64; 'height' / 'height_all' float32 where present."""
-    path = FrameFiles(frame_dir).topdown
-    ch = read_exr_checked(path)
-    out = {}
-    for layer, suffix in (("all", "_all"), ("ground", "")):
-        sub = {k.split(".", 1)[1]: v for k, v in ch.items() if k.lower().startswith(layer + ".")}
-        if not sub:
-            raise DatasetError(f"{path}: no '{layer}.' layer (has: {', '.join(sorted(ch))})")
-        out["semantic" + suffix] = _labels_int(find_channel(sub, path, "semantic"), path, f"{layer}.semantic")
-        out["instance" + suffix] = _labels_int(find_channel(sub, path, "instance"), path, f"{layer}.instance")
-        h = find_channel(sub, path, "height", required=False)
-        if h is not None:
-            out["height" + suffix] = np.asarray(h, np.float32)
-    return out
-
-
-@lru_cache(maxsize=32)
-def _rig_from_json(text: str, source: str):
-    import json
-
-    from geometry.rig import rig_from_dict
-
-    return rig_from_dict(json.loads(text), source)
-
-
-def rig_cached(d: dict, source: str):
-    """rig_from_dict, cached by the calibration (building a camera checks its model, ~0.2 s)."""
-    import json
-
-    return _rig_from_json(json.dumps(d, sort_keys=True), source)
-
-
-def frame_rig(meta: dict, frame_dir, fallback=None):
-    """The rig a frame was rendered with: meta.json's calibration, else `fallback`."""
-    from geometry.rig import RigError
-
-    from ..format.index import meta_rig
-
-    d = meta_rig(meta)
-    if d is None:
-        if fallback is None:
-            raise DatasetError(f"{Path(frame_dir) / 'meta.json'}: missing field 'rig' (the rig calibration)")
-        return fallback
-    try:
-        return rig_cached(d, f"{Path(frame_dir) / 'meta.json'}: rig")
-    except RigError as exc:
-        raise DatasetError(str(exc)) from None
-
-
-def ego_box(meta: dict, cfg: FusionConfig):
+def ego_box(meta: FrameMeta, cfg: FusionConfig):
     """(x_min, x_max, y_min, y_max) of the ego body: the config's, else the rendered body's
     (meta.json `ego.box`), else the default."""
     if cfg.ego_box is not None:
         return tuple(float(v) for v in cfg.ego_box)
-    box = (meta.get("ego") or {}).get("box")
-    return tuple(float(v) for v in box) if box is not None else DEFAULT_EGO_BOX
+    return meta.ego_box or DEFAULT_EGO_BOX
 
 
 def ego_mask(grid, box) -> np.ndarray:
@@ -337,52 +206,11 @@ def fuse_passes(rig, cameras: dict, topdown: dict, grid, cfg: FusionConfig, box=
 # ---------------------------------------------------------------- one frame on disk
 
 
-def load_frame_passes(frame_dir, rig_fallback=None):
-    """(meta, rig, cameras {name: passes}, topdown) of a rendered frame; the rig's cameras are
-    resized to the rendered image size when they differ."""
-    files = FrameFiles(frame_dir)
-    meta = read_meta(files.dir)
-    rig = frame_rig(meta, files.dir, rig_fallback)
-    cameras = {rc.name: read_camera_passes(files.camera_exr(rc.name)) for rc in rig}
-    sizes = {n: p["distance"].shape for n, p in cameras.items()}
-    if any(sizes[rc.name] != (rc.camera.height, rc.camera.width) for rc in rig):
-        from geometry.rig import Rig, RigCamera
-
-        rig = Rig([RigCamera(rc.name, rc.camera.resized(sizes[rc.name][1], sizes[rc.name][0]), rc.cam_to_ego) for rc in rig], rig.name)
-    return meta, rig, cameras, read_topdown(files.dir)
-
-
-def frame_grid(meta: dict, frame_dir):
-    """The label grid of a frame: meta.json's top-down grid, else the default 400 x 400 one."""
-    from geometry.bev import BevGrid
-
-    from ..format.index import meta_grid
-
-    g = meta_grid(meta)
-    if g is None:
-        return BevGrid()
-    try:
-        return BevGrid.from_dict(g)
-    except (TypeError, ValueError) as exc:
-        raise DatasetError(f"{Path(frame_dir) / 'meta.json'}: topdown.grid: {exc}") from None
-
-
-def fuse_frame(frame_dir, cfg: FusionConfig | None = None, rig_fallback=None) -> dict:
+def fuse_frame(frame_dir, cfg: FusionConfig | None = None) -> dict:
     """Labels of one rendered frame (see fuse_passes), on the frame's top-down grid."""
     cfg = cfg or FusionConfig()
-    meta, rig, cameras, topdown = load_frame_passes(frame_dir, rig_fallback)
-    grid = frame_grid(meta, frame_dir)
+    meta, rig, cameras, topdown = read_frame_passes(frame_dir)
+    grid = meta.grid()
     if topdown["semantic"].shape != grid.shape:
         raise DatasetError(f"{FrameFiles(frame_dir).topdown}: {topdown['semantic'].shape} pixels, the label grid is {grid.shape}")
     return fuse_passes(rig, cameras, topdown, grid, cfg, ego_box(meta, cfg))
-
-
-def write_labels(frame_dir, labels: dict) -> None:
-    """labels/semantic.png (uint8), instance.png (uint16), visibility.png (uint16, p * 65535);
-    each atomically, visibility last (its presence marks the frame done)."""
-    files = FrameFiles(frame_dir)
-    files.labels.mkdir(exist_ok=True)
-    vis16 = np.rint(np.clip(labels["visibility"], 0, 1) * VISIBILITY_SCALE).astype(np.uint16)
-    write_bytes_atomic(files.semantic, encode_png(labels["semantic"]))
-    write_bytes_atomic(files.instance, encode_png(labels["instance"]))
-    write_bytes_atomic(files.visibility, encode_png(vis16))

@@ -38,11 +38,13 @@ import numpy as np
 from common.errors import InputError
 from common.files import write_json_atomic
 
-from ..format.layout import AUDIT
-from ..format.reader import DatasetIndex, read_labels, read_meta
+from ..format.audit import write_audit
+from ..format.labels import read_labels
+from ..format.meta import read_meta
+from ..format.passes import read_frame_passes, read_topdown
+from ..format.reader import DatasetIndex
 from ..labels import visibility as V
-from ..labels.fusion import (FusionConfig, effective_tau, ego_box, ego_mask, frame_grid, frame_rig, load_frame_passes,
-                              read_topdown)
+from ..labels.fusion import FusionConfig, effective_tau, ego_box, ego_mask
 
 RINGS = (("0-10", 0.0, 10.0), ("10-20", 10.0, 20.0), ("20-25", 20.0, math.inf))
 THRESHOLD = 0.0005
@@ -194,12 +196,12 @@ def audit_frame(frame_dir, cfg: FusionConfig | None = None, many: float = 2.0, p
     """audit_labels of one fused frame on disk (pixels: also read the camera passes for 'unexplained')."""
     cfg = cfg or FusionConfig()
     meta = read_meta(frame_dir)
-    grid = frame_grid(meta, frame_dir)
+    grid = meta.grid()
     if pixels:
-        meta, rig, cameras, topdown = load_frame_passes(frame_dir)
+        meta, rig, cameras, topdown = read_frame_passes(frame_dir)
         points = pixel_points(rig, cameras, grid, cfg)
     else:
-        rig, topdown, points = frame_rig(meta, frame_dir), read_topdown(frame_dir), None
+        rig, topdown, points = meta.camera_rig(), read_topdown(frame_dir), None
     labels = read_labels(frame_dir)
     return audit_labels(grid, rig, topdown, labels["visibility"], ego_box(meta, cfg), cfg, many, points)
 
@@ -242,18 +244,6 @@ def audit_dataset(root, cfg: FusionConfig | None = None, threshold: float = THRE
             "ring_distance": "max(|x|, |y|) from the ego origin, m"}
 
 
-def read_audit(root) -> dict:
-    """<dataset>/audit.json (DatasetError when missing or unreadable)."""
-    from common.files import read_json
-
-    from ..format.layout import DatasetError
-
-    path = Path(root) / AUDIT
-    if not path.is_file():
-        raise DatasetError(f"{path}: missing (run python -m dataset_tools.audit {root})")
-    return read_json(path, DatasetError)
-
-
 def format_report(r: dict) -> str:
     pct = lambda v: "-" if v is None else f"{v:.4%}"  # noqa: E731
     lines = [f"{'ring':<8} {'visible':>8} {'no LoS':>8} {'beyond k':>9} {'unexpl.':>9} {'LoS+many':>9} {'invisible':>9}"]
@@ -282,10 +272,10 @@ def main(argv=None) -> int:
     cfg = FusionConfig.load(args.config) if args.config else FusionConfig()
     r = audit_dataset(args.dataset, cfg, args.threshold, args.many, args.metric, not args.no_pixels,
                       progress=not args.no_progress)
-    write_json_atomic(Path(args.dataset) / AUDIT, r)
+    path = write_audit(args.dataset, r)
     if args.json:
         write_json_atomic(Path(args.json), r)
     print(format_report(r))
     print(f"{'ok' if r['passed'] else 'FAIL'}: {args.metric} {r['overall'][args.metric]:.4%} of the visible cells "
-          f"(threshold {args.threshold:.4%}); written {Path(args.dataset) / AUDIT}")
+          f"(threshold {args.threshold:.4%}); written {path}")
     return 0 if r["passed"] else 1

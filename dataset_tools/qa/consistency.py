@@ -21,9 +21,11 @@ from common.cli import ArgumentParser
 from common.errors import InputError
 from common.files import write_json_atomic
 
-from ..format.reader import DatasetIndex, read_labels
+from ..format.labels import read_labels
+from ..format.passes import read_frame_passes
+from ..format.reader import DatasetIndex
 from ..labels import visibility as V
-from ..labels.fusion import FusionConfig, frame_grid, load_frame_passes
+from ..labels.fusion import FusionConfig
 
 
 def near_class(semantic: np.ndarray, n: int, cells: int) -> np.ndarray:
@@ -74,9 +76,9 @@ def scores(conf: np.ndarray, class_names) -> dict:
 def frame_consistency(frame_dir, cfg: FusionConfig | None = None, min_visibility: float = 0.5,
                       tolerance_cells: int = 1) -> dict:
     cfg = cfg or FusionConfig()
-    meta, rig, cameras, _ = load_frame_passes(frame_dir)
+    meta, rig, cameras, _ = read_frame_passes(frame_dir)
     labels = read_labels(frame_dir, len(cfg.class_names))
-    grid = frame_grid(meta, frame_dir)
+    grid = meta.grid()
     conf = camera_vs_labels(rig, cameras, labels["semantic"], labels["visibility"], grid, cfg, min_visibility,
                             tolerance_cells)
     return {"confusion": conf, "scores": scores(conf, cfg.class_names)}

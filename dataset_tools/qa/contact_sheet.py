@@ -17,11 +17,10 @@ import numpy as np
 
 from common.cli import ArgumentParser
 
-from ..format.exr import write_png_atomic
-from ..format.reader import read_png
+from ..format.exr import read_exr_checked
 from ..format.layout import DatasetError, FrameFiles, frame_dir_name
+from ..format.png import read_png, write_png_atomic
 from ..labels.classes import colorize
-from ..labels.fusion import read_exr_checked
 
 
 def _fit(img: np.ndarray, h: int) -> np.ndarray:

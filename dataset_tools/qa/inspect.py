@@ -19,10 +19,12 @@ import numpy as np
 from common.cli import ArgumentParser
 from common.files import output_dir
 
-from ..format.exr import write_png_atomic
+from ..format.exr import read_exr_checked
 from ..format.layout import DatasetError
+from ..format.passes import read_frame_passes
+from ..format.png import write_png_atomic
 from ..labels.classes import colorize, colorize_train
-from ..labels.fusion import FusionConfig, effective_tau, ego_box, frame_grid, fuse_passes, load_frame_passes, read_exr_checked
+from ..labels.fusion import FusionConfig, effective_tau, ego_box, fuse_passes
 from ..labels.visibility import visibility_from_counts
 CAMERA_COLOURS = np.array([[230, 25, 75], [60, 180, 75], [0, 130, 200], [255, 225, 25], [245, 130, 48],
                            [145, 30, 180], [70, 240, 240], [240, 50, 230]], np.float32)
@@ -156,8 +158,8 @@ def frame_pictures(frame_dir: Path, cfg: FusionConfig, labels: dict | None = Non
     fused ones in the pictures; the per-camera counts always come from fusing the passes.
     Also returns the data behind them: meta, rig, cameras, topdown, grid, labels (as shown),
     counts, names, tau, seen ({camera: cells it sees}) and n_seen (cameras per cell)."""
-    meta, rig, cameras, topdown = load_frame_passes(frame_dir)
-    grid = frame_grid(meta, frame_dir)
+    meta, rig, cameras, topdown = read_frame_passes(frame_dir)
+    grid = meta.grid()
     lab = fuse_passes(rig, cameras, topdown, grid, cfg, ego_box(meta, cfg))
     shown = {**lab, **(labels or {})}
     sem_pic = colorize_train(shown["semantic"])

@@ -22,10 +22,14 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from common.files import clean_stale_temps, read_json, write_bytes_atomic, write_figure_atomic, write_json_atomic, write_text_atomic
+from common.files import clean_stale_temps, write_bytes_atomic, write_figure_atomic, write_json_atomic, write_text_atomic
 
-from ..format.layout import AUDIT, REPORT_DIR, DatasetError, FrameFiles, frame_dir_name
-from ..format.reader import DatasetIndex, downsample_labels, read_labels, read_png
+from ..format.audit import audit_metric, read_audit
+from ..format.labels import read_labels
+from ..format.layout import REPORT_DIR, DatasetError, FrameFiles, frame_dir_name
+from ..format.meta import FrameMeta
+from ..format.png import read_png
+from ..format.reader import DatasetIndex, downsample_labels
 from ..labels.classes import TRAIN_PALETTE
 from ..labels.fusion import DEFAULT_EGO_BOX, FusionConfig
 from . import consistency as C
@@ -145,20 +149,20 @@ def cell_table(labels: dict, topdown: dict, seen: dict, names: list[str], grid, 
             "height_dm": b64(np.clip(np.rint(height * 10), 0, 250))}
 
 
-def meta_summary(meta: dict) -> dict:
+def meta_summary(meta: FrameMeta) -> dict:
     """The metadata shown beside a frame: weather, sun, actors by kind, ego pose, timings."""
     kinds: dict[str, int] = {}
-    for a in meta.get("actors") or []:
+    for a in meta.actors or []:
         if isinstance(a, dict):
             k = f"{a.get('kind', a.get('class', '?'))}{' (parked)' if a.get('parked') else ''}"
             kinds[k] = kinds.get(k, 0) + 1
-    pose = meta.get("ego_pose") or {}
+    pose = meta.ego_pose or {}
     return {
-        "time_s": meta.get("time_s"), "family": meta.get("family"), "split": meta.get("split"),
-        "weather": meta.get("weather") or {}, "sun": meta.get("sun") or {},
+        "time_s": meta.time_s, "family": meta.family, "split": meta.split,
+        "weather": meta.weather or {}, "sun": meta.sun or {},
         "ego_pose": {k: pose[k] for k in ("x", "y", "yaw") if k in pose},
-        "actors": len(meta.get("actors") or []), "actors_by_kind": dict(sorted(kinds.items())),
-        "timings": meta.get("timings") or {},
+        "actors": len(meta.actors or []), "actors_by_kind": dict(sorted(kinds.items())),
+        "timings": meta.timings or {},
     }
 
 
@@ -287,33 +291,7 @@ def timing_figure(infos: list[dict], path: Path) -> None:
 # ---------------------------------------------------------------- audit
 
 
-def read_audit(root: Path) -> dict | None:
-    """<DATA>/audit.json (dataset_tools.audit) or None when there is none yet."""
-    path = root / AUDIT
-    if not path.is_file():
-        return None
-    a = read_json(path, DatasetError)
-    if not isinstance(a, dict) or not isinstance(a.get("frames", {}), dict):
-        raise DatasetError(f"{path}: field 'frames' must be a mapping of '<scene>/<frame>' to figures")
-    for name, fig in a.get("frames", {}).items():
-        if not isinstance(fig, dict):
-            raise DatasetError(f"{path}: frames.{name}: must be a mapping of figures")
-    th = a.get("threshold")
-    if th is not None and (isinstance(th, bool) or not isinstance(th, (int, float))):
-        raise DatasetError(f"{path}: field 'threshold' must be a number")
-    if not isinstance(a.get("overall") or {}, dict):
-        raise DatasetError(f"{path}: field 'overall' must be a mapping of figures")
-    a.setdefault("frames", {})
-    return a
-
-
 AUDIT_FIGURES = ("visible_no_los", "los_invisible")  # drawn beside the metric the audit checked
-
-
-def audit_metric(audit: dict) -> str:
-    """The figure the audit's threshold applies to (`python -m dataset_tools.audit --metric`)."""
-    m = audit.get("metric")
-    return m if isinstance(m, str) else "visible_no_los"
 
 
 def _number(v):
@@ -477,7 +455,7 @@ def build_report(root, out=None, frames_per_scene: int | None = None, threshold:
         info, new = frame_info(ref, out / "frames" / frame_dir_name(ref.scene, ref.frame), cfg, idx.class_names, force)
         rebuilt += new
         scenes.setdefault(ref.scene, []).append(info)
-    audit = read_audit(root)
+    audit = read_audit(root, missing_ok=True)
     # the statistics read every label: cached, redone when a frame or the index changed
     stamp = out / "overview" / "stats.json"
     if rebuilt or force or not up_to_date(stamp, [root / "index.json"]):

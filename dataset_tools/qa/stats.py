@@ -15,8 +15,11 @@ import numpy as np
 from common.cli import ArgumentParser
 from common.files import output_dir, write_figure_atomic, write_json_atomic
 
-from ..format.reader import DatasetIndex, read_labels, read_meta
-from ..labels.fusion import FusionConfig, camera_counts, effective_tau, frame_grid, load_frame_passes
+from ..format.labels import read_labels
+from ..format.meta import read_meta
+from ..format.passes import read_frame_passes
+from ..format.reader import DatasetIndex
+from ..labels.fusion import FusionConfig, camera_counts, effective_tau
 from ..labels.visibility import ray_tables, visibility_from_counts
 
 RANGE_EDGES = (0, 5, 10, 15, 20, 25, 36)
@@ -26,10 +29,8 @@ VIS_BINS = 10
 def frame_stats(ref, n_classes: int, cfg: FusionConfig, cameras: bool) -> dict:
     lab = read_labels(ref.dir, n_classes)
     sem, vis = lab["semantic"], lab["visibility"]
-    meta, rig, cams, _ = load_frame_passes(ref.dir) if cameras else (None, None, None, None)
-    if meta is None:
-        meta = read_meta(ref.dir)
-    grid = frame_grid(meta, ref.dir)
+    meta, rig, cams, _ = read_frame_passes(ref.dir) if cameras else (read_meta(ref.dir), None, None, None)
+    grid = meta.grid()
     c = grid.cell_centres()
     rng = np.hypot(c[..., 0], c[..., 1])
     ring = np.digitize(rng, RANGE_EDGES[1:-1])

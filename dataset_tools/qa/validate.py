@@ -17,13 +17,16 @@ from pathlib import Path
 import numpy as np
 
 from common.cli import ArgumentParser
-from common.files import read_json
 
-from ..format.index import meta_rig
+from ..format.audit import audit_metric, read_audit
+from ..format.exr import read_exr_checked
+from ..format.index import read_index
+from ..format.labels import label_problems
 from ..format.layout import AUDIT, INDEX, MANIFEST, DatasetError, FrameFiles, Manifest, frame_dir_name
-from ..format.reader import read_meta, read_png
+from ..format.meta import read_meta
+from ..format.passes import find_channel, read_topdown
+from ..format.png import read_png
 from ..labels.classes import NUM_FINE_CLASSES
-from ..labels.fusion import find_channel, frame_grid, frame_rig, read_exr_checked, read_topdown
 
 
 def check_manifest(root: Path, problems: list) -> list[dict]:
@@ -56,20 +59,13 @@ def check_manifest(root: Path, problems: list) -> list[dict]:
 
 
 def check_index(root: Path, entries: list[dict], problems: list) -> None:
-    path = root / INDEX
-    if not path.is_file():
-        problems.append(f"{path}: missing (python -m dataset_tools.index {root})")
-        return
     try:
-        idx = read_json(path, DatasetError)
-        splits = idx["splits"]
-        listed = {(str(x["dir"]), s) for s, xs in splits.items() for x in xs}
+        idx = read_index(root)
     except DatasetError as exc:
         problems.append(str(exc))
         return
-    except (KeyError, TypeError, AttributeError):
-        problems.append(f"{path}: field 'splits' must map split names to lists of frames with 'dir'")
-        return
+    path = root / INDEX
+    listed = {(str(x["dir"]), s) for s, xs in idx["splits"].items() for x in xs}
     want = {(str(e["dir"]), str(e["split"])) for e in entries}
     for d, s in sorted(want - listed):
         problems.append(f"{path}: frame {d} (split {s}) is in the manifest but not in the index")
@@ -103,22 +99,10 @@ def _check_exr_camera(path: Path, shape, problems: list) -> None:
 
 def check_frame(frame_dir: Path, problems: list, labels: bool = True, n_classes: int = 5) -> None:
     files = FrameFiles(frame_dir)
-    meta_path = files.meta
-    if not meta_path.is_file():
-        problems.append(f"{meta_path}: missing")
-        return
     try:
         meta = read_meta(frame_dir)
-    except DatasetError as exc:
-        problems.append(str(exc))
-        return
-    rig = meta_rig(meta)
-    if rig is None:
-        problems.append(f"{meta_path}: missing field 'rig'")
-        return
-    try:
-        rig = frame_rig(meta, frame_dir)
-        grid = frame_grid(meta, frame_dir)
+        rig = meta.camera_rig()
+        grid = meta.grid()
     except DatasetError as exc:
         problems.append(str(exc))
         return
@@ -143,25 +127,14 @@ def check_frame(frame_dir: Path, problems: list, labels: bool = True, n_classes:
         problems.append(str(exc))
     if not labels:
         return
-    for path, dtype in ((files.semantic, np.uint8), (files.instance, np.uint16), (files.visibility, np.uint16)):
-        try:
-            a = read_png(path, dtype, 1)
-        except DatasetError as exc:
-            problems.append(str(exc))
-            continue
-        if a.shape != grid.shape:
-            problems.append(f"{path}: {a.shape} pixels, the label grid is {grid.shape}")
-        elif path == files.semantic and a.max() >= n_classes:
-            problems.append(f"{path}: class {int(a.max())}, beyond the {n_classes} training classes")
+    problems += label_problems(frame_dir, grid.shape, n_classes)
 
 
 def check_audit(root: Path, threshold: float, problems: list) -> None:
     """The line-of-sight audit's overall metric (the one audit.json was checked with) within `threshold`."""
-    from .audit import read_audit
-
     try:
         a = read_audit(root)
-        metric = str(a.get("metric", "visible_no_los"))
+        metric = audit_metric(a)
         share = float(a["overall"][metric])
     except DatasetError as exc:
         problems.append(str(exc))
@@ -186,8 +159,8 @@ def validate(root, labels: bool = True, progress: bool = True, audit_threshold: 
     if labels:
         check_index(root, entries, problems)
         try:
-            n_classes = len(read_json(root / INDEX, DatasetError).get("class_names", [0] * 5))
-        except (DatasetError, AttributeError, TypeError):
+            n_classes = len(read_index(root)["class_names"])
+        except DatasetError:
             pass
     for e in tqdm(entries, desc="validate", unit="frame", disable=not progress):
         check_frame(root / e["dir"], problems, labels, n_classes)

@@ -1,5 +1,5 @@
 """Constructed frames rendered by Blender: the ground plane and axis-aligned boxes of
-dataset_tools.format.constructed, plus flat paint strips, built as real objects and rendered
+testing.constructed, plus flat paint strips, built as real objects and rendered
 through the production render path (render_fisheye, label_mode, render_topdown) into a frame
 directory that fusion and the audit read like any other. The tests' proof that the labels are
 right for geometry whose answer is known exactly.
@@ -12,19 +12,17 @@ from pathlib import Path
 import bpy
 import numpy as np
 
-from common.files import write_json_atomic
-from dataset_tools.format.constructed import Box
+from blender_scripts import lighting
+from blender_scripts.build_scene import _mesh_object, reset_blender, scene_rng
+from blender_scripts.camera import add_rig_camera, add_topdown_camera
+from blender_scripts.materials import MATERIAL_CLASSES, build_materials
+from blender_scripts.render_frame import configure_render, label_mode, render_fisheye, render_topdown
+from blender_scripts.shapes import MeshData
 from dataset_tools.format.exr import write_exr
 from dataset_tools.format.layout import FrameFiles
+from dataset_tools.format.meta import FrameMeta, write_meta
 
-from . import lighting
-from .build_scene import _mesh_object, reset_blender, scene_rng
-from .camera import add_rig_camera, add_topdown_camera
-from .materials import MATERIAL_CLASSES, build_materials
-from .render_frame import configure_render, label_mode, render_fisheye, render_topdown
-from .shapes import MeshData
-
-GROUND_INSTANCE = 1  # as in dataset_tools.format.constructed
+from .constructed import GROUND_INSTANCE, Box
 # the fine class of a Box -> the material that paints it
 CLASS_MATERIAL = {"vehicle": "car_paint", "curb": "kerb", "building": "wall", "road": "asphalt",
                   "lane_marking": "paint_white", "sidewalk": "pavement", "barrier": "barrier_concrete"}
@@ -73,7 +71,7 @@ def render_boxes_frame(frame_dir, rig, grid, boxes: list[Box], paint=(), supersa
     with label_mode(scene):
         td = render_topdown(scene, top, grid.cols, [], np.eye(4), tmpdir, supersample, marking_share)
     write_exr(files.topdown, td)
-    write_json_atomic(files.meta, {"rig": rig.to_dict(), "weather": {"preset": "clear_noon"},
-                                   "topdown": {"grid": grid.to_dict(), "height_m": 60.0, "supersample": supersample,
-                                               "marking_share": marking_share}})
+    write_meta(files.dir, FrameMeta(rig=rig.to_dict(), weather={"preset": "clear_noon"},
+                                    topdown={"grid": grid.to_dict(), "height_m": 60.0, "supersample": supersample,
+                                             "marking_share": marking_share}))
     return files.dir

@@ -1,7 +1,8 @@
 """Constructed frames with exact passes: a ground plane and axis-aligned boxes, ray-cast through the
 rig's camera models (geometry), written in the renderer's file layout (real EXR and PNG files).
 
-Used by the label tests and the fusion bench, where the answer must be known without Blender.
+Used by the label tests and the fusion bench, where the answer must be known without Blender
+(testing.blender_constructed renders the same geometry in Blender).
 """
 
 from __future__ import annotations
@@ -11,11 +12,12 @@ from pathlib import Path
 
 import numpy as np
 
-from common.files import write_json_atomic
-
-from ..labels.classes import CLASS_IDS, OVERHEAD_OCCLUDERS, colorize
-from .exr import write_exr, write_png_atomic
-from .layout import FrameFiles, Manifest, frame_dir_name
+from dataset_tools.format.exr import write_exr
+from dataset_tools.format.layout import FrameFiles, Manifest, frame_dir_name
+from dataset_tools.format.meta import FrameMeta, write_meta
+from dataset_tools.format.png import write_png_atomic
+from dataset_tools.labels.classes import CLASS_IDS, OVERHEAD_OCCLUDERS, colorize
+from dataset_tools.labels.visibility import camera_table
 
 NO_HIT = 1e10  # Cycles' background depth
 GROUND_INSTANCE = 1
@@ -79,8 +81,6 @@ def cast(origin: np.ndarray, rays: np.ndarray, boxes, ground_fn=ground_class_lan
 def render_camera(rc, boxes, ground_fn=ground_class_lanes) -> dict:
     """Exact passes of one rig camera: distance (float32, 1e10 where nothing is hit or the model is
     invalid), semantic and instance (uint32), position (float32 ego-frame xyz, (H, W, 3))."""
-    from ..labels.visibility import camera_table
-
     t = camera_table(rc)
     h, w = t.shape
     px = np.flatnonzero(t.valid)
@@ -119,7 +119,8 @@ def render_topdown(grid, boxes, hide_occluders: bool, ground_fn=ground_class_lan
 def write_frame(frame_dir, rig, grid, boxes, ground_fn=ground_class_lanes, meta: dict | None = None) -> Path:
     """A frame directory in the renderer's layout (blender_scripts/render_frame.py): cam_<name>.exr
     (R, G, B, distance, semantic, instance, position.X/Y/Z) and .png, topdown.exr ('all.' first hit
-    and 'ground.' with overhead occluders hidden: semantic, instance, height), meta.json."""
+    and 'ground.' with overhead occluders hidden: semantic, instance, height), meta.json (`meta`:
+    more FrameMeta fields)."""
     files = FrameFiles(frame_dir)
     files.dir.mkdir(parents=True, exist_ok=True)
     for rc in rig:
@@ -136,7 +137,7 @@ def write_frame(frame_dir, rig, grid, boxes, ground_fn=ground_class_lanes, meta:
     write_exr(files.topdown, ch)
     m = {"rig": rig.to_dict(), "weather": {"preset": "clear_noon"}, "topdown": {"grid": grid.to_dict()}}
     m.update(meta or {})
-    write_json_atomic(files.meta, m)
+    write_meta(files.dir, FrameMeta(**m))
     return files.dir
 
 

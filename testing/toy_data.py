@@ -5,7 +5,7 @@ Each frame has a random road layout on the ground plane (street band, lane marki
 background); every camera image is "rendered" by intersecting each pixel's ray (from geometry) with
 the ground plane and colouring it by the class there, so images and labels agree geometrically.
 
-    python -m model.toy_data OUT --frames 8 [--rig configs/rigs/default.yaml]
+    python -m testing.toy_data OUT --frames 8 [--rig configs/rigs/default.yaml]
 """
 
 from __future__ import annotations
@@ -15,9 +15,11 @@ from pathlib import Path
 
 import numpy as np
 
-from common.files import write_json_atomic
-from dataset_tools.format.exr import write_png_atomic
-from dataset_tools.format.layout import INDEX, SPLITS, VISIBILITY_SCALE, FrameFiles, frame_dir_name
+from dataset_tools.format.index import build_index, write_index
+from dataset_tools.format.labels import write_labels
+from dataset_tools.format.layout import FrameFiles, Manifest, frame_dir_name
+from dataset_tools.format.meta import FrameMeta, write_meta
+from dataset_tools.format.png import write_png_atomic
 from dataset_tools.labels.classes import TRAIN_CLASSES
 from geometry.bev import BevGrid
 from geometry.rig import load_rig
@@ -72,7 +74,7 @@ def write_toy_dataset(out, frames: int = 8, rig_path="configs/rigs/default.yaml"
         rig = rig.map_cameras(lambda c: c.resized(int(round(c.width * image_scale)), int(round(c.height * image_scale))))
     grid = BevGrid()
     rng = np.random.default_rng(seed)
-    index = {"splits": {s: [] for s in SPLITS}, "class_names": list(TRAIN_CLASSES), "grid": grid.to_dict(), "rig": rig.to_dict()}
+    manifest = Manifest(out)
     for n in range(frames):
         split = splits[n % len(splits)]
         rel = frame_dir_name("toy", n)
@@ -81,12 +83,10 @@ def write_toy_dataset(out, frames: int = 8, rig_path="configs/rigs/default.yaml"
         sem, vis = toy_labels(rng, grid)
         for rc in rig:
             write_png_atomic(f.camera_png(rc.name), render_camera(rc, sem, grid, rng))
-        write_png_atomic(f.semantic, sem)
-        write_png_atomic(f.instance, (sem == 1).astype(np.uint16))
-        write_png_atomic(f.visibility, np.round(vis * VISIBILITY_SCALE).astype(np.uint16))
-        write_json_atomic(f.meta, {"scene": "toy", "frame": n})
-        index["splits"][split].append({"dir": rel, "scene": "toy", "frame": n})
-    write_json_atomic(out / INDEX, index)
+        write_labels(f.dir, {"semantic": sem, "instance": (sem == 1).astype(np.uint16), "visibility": vis})
+        write_meta(f.dir, FrameMeta(scene="toy", frame=n, split=split, rig=rig.to_dict(), topdown={"grid": grid.to_dict()}))
+        manifest.append({"scene": "toy", "frame": n, "split": split, "dir": rel})
+    write_index(out, build_index(out, TRAIN_CLASSES))
     return out
 
 
