@@ -56,7 +56,7 @@ train: setup
 	$(PYTHON) train.py --config $(CONFIG) --out $(RUN)
 
 eval: setup
-	$(PYTHON) eval.py --checkpoint $(RUN)/latest.pt --split $(SPLIT)
+	$(PYTHON) eval.py --checkpoint $(RUN) --split $(SPLIT)
 
 # make ablation BUDGET=9 SEEDS=1 SCALE=cpu [DATA=data/small] [OUT=runs/ablation]: the paper's Tables I and II
 BUDGET ?= 9

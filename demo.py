@@ -14,7 +14,8 @@ import argparse
 import subprocess
 import sys
 import time
-from pathlib import Path
+
+from model.run_dir import RunDir
 
 
 def step(title: str, cmd: list[str]) -> None:
@@ -39,14 +40,14 @@ def main(argv=None) -> int:
     step("1/4 render the scenes in Blender", [py, "-m", "dataset_tools.generate", "--config", a.dataset_config, "--out", a.data])
     step("2/4 fuse occlusion-corrected BEV labels", [py, "-m", "dataset_tools.fuse", a.data, "--config", a.dataset_config])
     step("3/4 train the LSS-fisheye model", [py, "train.py", "--config", a.train_config, "--out", a.run, "--set", f"data.root={a.data}"])
-    ckpt = Path(a.run) / "latest.pt"
-    step("4/4 evaluate on every split", [py, "eval.py", "--checkpoint", str(ckpt), "--split", "all", "--out", str(Path(a.run) / "eval")])
-    out = Path(a.run) / "eval"
+    run = RunDir(a.run)
+    ckpt, out = run.latest, run.eval
+    step("4/4 evaluate on every split", [py, "eval.py", "--checkpoint", str(ckpt), "--split", "all", "--out", str(out)])
     print(f"\ndemo finished in {(time.time() - t0) / 60:.1f} min")
     print(f"  data set and contact sheets: {a.data}/  (label QA: python -m dataset_tools.inspect {a.data}/<scene>/<frame>)")
-    print(f"  checkpoint:                  {ckpt}  (TensorBoard: tensorboard --logdir {a.run}/tb)")
-    print(f"  tables:                      {out}/table.md, {out}/metrics.json")
-    print(f"  pictures:                    {out}/frame_*.png, {out}/confusion_*.png")
+    print(f"  checkpoint:                  {ckpt}  (TensorBoard: tensorboard --logdir {run.tb})")
+    print(f"  tables:                      {out.table}, {out.metrics}")
+    print(f"  pictures:                    {out}/{out.FRAME_GLOB}, {out}/{out.CONFUSION_GLOB}")
     return 0
 
 

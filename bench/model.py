@@ -189,7 +189,7 @@ def _child_train(data_root: str, steps: int, trunk: str = "scratch") -> dict:
     from model.config import load_config
     from model.data import BevDataset
     from model.losses import class_weights, total_loss
-    from train import EpochBatches
+    from model.training import EpochBatches
 
     cfg = load_config(ROOT / "configs/train/cpu_default.yaml", {"data": {"root": data_root}, "model": {"trunk": trunk}})
     t = cfg["train"]

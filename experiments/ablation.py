@@ -6,9 +6,10 @@
 Every row is the base config (`--scale cpu`: configs/train/cpu_default.yaml; `gpu`:
 configs/train/paper.yaml) with the paper's best settings (intrinsics-embedding pooling, uniform
 class weights, occlusion loss, the pretrained EfficientNet-Lite0 trunk) and one change. Each row and
-seed trains with train.py's functions for the same wall-clock budget (or the same number of steps),
-from the same seed, then is scored with eval.py's protocol on the easy, medium and hard splits (and
-`heldout`, sampled scenes from seeds training never used, where the data set has one).
+seed trains with `model.training` (what train.py runs) for the same wall-clock budget (or the same
+number of steps), from the same seed, then is scored with `model.evaluation` (eval.py's protocol) on
+the easy, medium and hard splits (and `heldout`, sampled scenes from seeds training never used,
+where the data set has one).
 
 Resumable: `<out>/<row>/seed<k>/` holds the run; `result.json` there marks it finished (never
 retrained; scored on an evaluation split the data set has gained since); a killed row resumes from
@@ -19,17 +20,16 @@ standard deviation over seeds when there are several).
 
 from __future__ import annotations
 
-import argparse
-import math
 import time
 from pathlib import Path
 
 import numpy as np
 
-from common.cli import run_cli
+from common.cli import ArgumentParser, run_cli
 from common.errors import InputError
 from common.files import output_dir, read_json, write_json_atomic, write_text_atomic
 from common.schema import deep_merge
+from model.run_dir import RunDir
 
 ROOT = Path(__file__).resolve().parents[1]
 SCALES = {"cpu": "configs/train/cpu_default.yaml", "gpu": "configs/train/paper.yaml"}
@@ -50,6 +50,7 @@ ROWS = {
 }
 COLUMNS = [("miou", "mIoU"), ("iou/occlusion", "Occlusion"), ("iou/vehicle", "Vehicles"),
            ("iou/lane_marking", "Markings"), ("iou/street", "Street"), ("iou/background", "Background")]
+TABLES_MD, TABLES_JSON = "tables.md", "tables.json"  # in --out, beside the rows' run folders <row>/seed<k>/
 EVAL_SPLITS = ("easy", "medium", "hard", "heldout")  # heldout: sampled scenes of unseen seeds, where the data set has them
 
 # The paper's numbers (DaF-BEVSeg, Tables I and II), in COLUMNS order (None: not reported).
@@ -95,45 +96,11 @@ def row_config(base_path: Path, row: str, seed: int, data: str | None, extra: di
     return load_config(base_path, over)
 
 
-def train_row(cfg: dict, run_dir: Path, budget_s: float | None, steps: int | None, quiet: bool) -> dict:
-    """Train to `steps`, or for `budget_s` seconds of training in chunks (train() resumes exactly
-    between them); the training time so far is kept in budget.json so a killed row resumes."""
-    import train as trainer
+def evaluate_row(run: RunDir, splits) -> dict:
+    from model.evaluation import evaluate_splits, open_checkpoint
 
-    state_path = run_dir / "budget.json"
-    state = read_json(state_path, AblationError) if state_path.is_file() else {"seconds": 0.0, "step": 0}
-    if steps is not None:
-        t0 = time.perf_counter()
-        res = trainer.train(deep_merge(cfg, {"train": {"max_steps": steps}}), run_dir, quiet=quiet)
-        state = {"seconds": state["seconds"] + time.perf_counter() - t0, "step": res["step"]}
-        write_json_atomic(state_path, state)
-        return state
-    chunk = 1  # first chunk: time one step (and the run's set-up)
-    while state["seconds"] < budget_s:
-        target = state["step"] + chunk
-        t0 = time.perf_counter()
-        res = trainer.train(deep_merge(cfg, {"train": {"max_steps": target, "checkpoint_every": max(1, chunk)}}), run_dir, quiet=True)
-        spent = time.perf_counter() - t0
-        state = {"seconds": state["seconds"] + spent, "step": res["step"]}
-        write_json_atomic(state_path, state)
-        per_step = spent / max(chunk, 1)
-        left = budget_s - state["seconds"]
-        chunk = max(1, min(int(left / per_step / 2) if left > 4 * per_step else int(math.ceil(left / per_step)), 10**6))
-        if not quiet:
-            print(f"  {run_dir}: step {state['step']}, {state['seconds']:.0f}/{budget_s:.0f} s", flush=True)
-    return state
-
-
-def evaluate_row(run_dir: Path, splits) -> dict:
-    from dataset_tools import DatasetIndex
-    from eval import evaluate_split
-    from model import load_checkpoint
-
-    model, cfg, ckpt = load_checkpoint(run_dir / "latest.pt")
-    model.eval()
-    index = DatasetIndex(cfg["data"]["root"])
-    (run_dir / "eval").mkdir(exist_ok=True)
-    return {s: evaluate_split(model, cfg, index, s, run_dir / "eval", 0, False) for s in splits}
+    model, cfg, _, index = open_checkpoint(run.latest)
+    return evaluate_splits(model, cfg, index, splits, run.eval)
 
 
 def _split_results(splits: dict) -> dict:
@@ -143,20 +110,22 @@ def _split_results(splits: dict) -> dict:
 
 def run_row(base_path, row, seed, out: Path, data, budget_s, steps, extra, quiet, eval_splits) -> dict:
     """Train and score one row and seed (`eval_splits`: those of EVAL_SPLITS the data set has)."""
-    run_dir = out / row / f"seed{seed}"
-    done = run_dir / "result.json"
+    from model.training import train_with_budget
+
+    run = RunDir(out / row / f"seed{seed}")
+    done = run.result
     if done.is_file():
         result = read_json(done, AblationError)
         missing = [s for s in eval_splits if s not in result["splits"]]
-        if missing and (run_dir / "latest.pt").is_file():
-            result["splits"].update(_split_results(evaluate_row(run_dir, missing)))  # a split added to the data set later: scored, not retrained
+        if missing and run.latest.is_file():
+            result["splits"].update(_split_results(evaluate_row(run, missing)))  # a split added to the data set later: scored, not retrained
             write_json_atomic(done, result)
         return result
-    run_dir.mkdir(parents=True, exist_ok=True)
+    run.root.mkdir(parents=True, exist_ok=True)
     cfg = row_config(base_path, row, seed, data, extra)
     t0 = time.perf_counter()
-    state = train_row(cfg, run_dir, budget_s, steps, quiet)
-    splits = evaluate_row(run_dir, eval_splits)
+    state = train_with_budget(cfg, run.root, budget_s, steps, quiet)
+    splits = evaluate_row(run, eval_splits)
     result = {"row": row, "seed": seed, "steps": state["step"], "train_seconds": state["seconds"],
               "eval_seconds": time.perf_counter() - t0 - state["seconds"],
               "splits": _split_results(splits)}
@@ -265,7 +234,7 @@ def tables(results: dict[str, list[dict]], meta: dict) -> tuple[str, dict]:
 def main(argv=None) -> int:
     from tqdm import tqdm
 
-    p = argparse.ArgumentParser(prog="experiments.ablation", description="Train and score every row of the paper's Tables I and II.")
+    p = ArgumentParser(prog="experiments.ablation", description="Train and score every row of the paper's Tables I and II.")
     g = p.add_mutually_exclusive_group(required=True)
     g.add_argument("--budget-minutes", type=float, help="training wall-clock minutes per row and seed")
     g.add_argument("--steps", type=int, help="training steps per row and seed (instead of a time budget)")
@@ -305,7 +274,7 @@ def main(argv=None) -> int:
     budget_s = None if a.budget_minutes is None else 60 * a.budget_minutes
     for row, seed in tqdm(jobs, desc="ablation rows", dynamic_ncols=True, disable=a.quiet or a.report):
         if a.report:
-            done = out / row / f"seed{seed}" / "result.json"
+            done = RunDir(out / row / f"seed{seed}").result
             if done.is_file():
                 results.setdefault(row, []).append(read_json(done, AblationError))
             continue
@@ -317,11 +286,11 @@ def main(argv=None) -> int:
     if "rectified" in rows:
         meta["rectification"] = rectification_report(row_config(base_path, "rectified", 0, a.data, extra))
     md, js = tables(results, meta)
-    write_text_atomic(out / "tables.md", md)
-    write_json_atomic(out / "tables.json", js, indent=2)
+    write_text_atomic(out / TABLES_MD, md)
+    write_json_atomic(out / TABLES_JSON, js, indent=2)
     if not a.quiet:
         print(md)
-    print(f"written {out / 'tables.md'} and {out / 'tables.json'}")
+    print(f"written {out / TABLES_MD} and {out / TABLES_JSON}")
     return 0
 
 

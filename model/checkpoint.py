@@ -1,4 +1,6 @@
-"""build_model(cfg, rig) and checkpoints that carry their config and rig."""
+"""build_model(cfg, rig) and checkpoints that carry their config and rig: the one writer
+(`save_checkpoint`), the one reader (`read_checkpoint`, used by resume, eval and the ablation) and
+the one place that brings an older checkpoint up to date (`upgrade_checkpoint`)."""
 
 from __future__ import annotations
 
@@ -10,12 +12,17 @@ from common.errors import InputError
 from common.files import write_bytes_atomic
 from geometry.rig import Rig, rig_from_dict
 
+from .lss import NUM_CLASSES
+
+MODEL_KEYS = ("config", "model", "rig")  # what every checkpoint holds
+TRAINING_KEYS = ("optimizer", "step", "epoch", "step_in_epoch", "best", "rng")  # and what a resume needs
+
 
 class CheckpointError(InputError):
     pass
 
 
-def build_model(cfg: dict, rig: Rig, num_classes: int = 5):
+def build_model(cfg: dict, rig: Rig, num_classes: int = NUM_CLASSES):
     """The model of a validated config for a rig (cameras at their native image size)."""
     from .frustum import Frustum
     from .lss import LSSFisheye
@@ -37,41 +44,60 @@ def save_checkpoint(path, state: dict) -> None:
 
 
 def model_part(cfg: dict) -> dict:
-    # what decides the network and its inputs; training knobs may differ
+    # what decides the network and its inputs (of a validated config); training knobs may differ
     from .rectified import rectify_part
 
-    return {"model": {"trunk": "scratch", **cfg["model"]}, "input_size": list(cfg["data"]["input_size"]), "grid": cfg["data"]["grid"],
-            **rectify_part(cfg)}
+    return {"model": cfg["model"], "input_size": list(cfg["data"]["input_size"]), "grid": cfg["data"]["grid"], **rectify_part(cfg)}
 
 
-def load_checkpoint(path, expect_config: dict | None = None, map_location="cpu"):
-    """-> (model, config, checkpoint dict). With expect_config, refuses (CheckpointError) a
-    checkpoint whose model, input size or grid differ from that config's."""
-    path = Path(path)
-    try:
-        ckpt = torch.load(path, map_location=map_location, weights_only=False)
-    except Exception as exc:  # torch.load raises many kinds (pickle, zip, runtime) on a bad file
-        what = "no such file" if isinstance(exc, FileNotFoundError) else f"torch.load failed: {type(exc).__name__}"
-        raise CheckpointError(f"{path}: not a readable checkpoint ({what})") from None
-    for k in ("config", "model", "rig"):
-        if not isinstance(ckpt, dict) or k not in ckpt:
-            raise CheckpointError(f"{path}: not a checkpoint of train.py (missing '{k}')")
-    cfg = ckpt["config"]
+def upgrade_checkpoint(ckpt: dict, path) -> dict:
+    """A checkpoint as the current code writes it. The config is validated, which gives options
+    added since it was written their defaults (model.trunk, data.rectify, ...); a checkpoint
+    without `num_classes` predicts NUM_CLASSES; one without `cuda_rng` was written on CPU."""
     from .config import validate
 
+    cfg = ckpt["config"]
     if not isinstance(cfg, dict):
         raise CheckpointError(f"{path}: config: must be a mapping, got {type(cfg).__name__}")
     try:
         cfg = validate(cfg, f"{path}: config")
     except InputError as exc:
         raise CheckpointError(str(exc)) from None
-    if expect_config is not None and model_part(expect_config) != model_part(cfg):
-        diff = [k for k in model_part(cfg) if model_part(cfg)[k] != model_part(expect_config)[k]]
-        raise CheckpointError(f"{path}: checkpoint is from another config ({', '.join(diff)} differ)")
-    rig = rig_from_dict(ckpt["rig"], f"{path}: rig")
-    model = build_model(cfg, rig, ckpt.get("num_classes", 5))
+    return {"num_classes": NUM_CLASSES, "cuda_rng": None, **ckpt, "config": cfg}
+
+
+def read_checkpoint(path, expect_config: dict | None = None, expect_rig: Rig | None = None, resume: bool = False) -> dict:
+    """The checkpoint at `path`, upgraded (`upgrade_checkpoint`); any problem is one
+    CheckpointError line naming the file. With expect_config, refuses a checkpoint whose model,
+    input size or grid differ from that config's; with expect_rig, one of another rig. `resume`:
+    the training state must be there too, and the messages say how to start afresh."""
+    path = Path(path)
+    afresh = "; move it away to start afresh" if resume else ""
+    try:
+        ckpt = torch.load(path, map_location="cpu", weights_only=False)
+    except Exception as exc:  # torch.load raises many kinds (pickle, zip, runtime) on a bad file
+        what = "no such file" if isinstance(exc, FileNotFoundError) else f"torch.load failed: {type(exc).__name__}"
+        raise CheckpointError(f"{path}: not a readable checkpoint ({what}){afresh}") from None
+    for k in MODEL_KEYS + (TRAINING_KEYS if resume else ()):
+        if not isinstance(ckpt, dict) or k not in ckpt:
+            raise CheckpointError(f"{path}: not a checkpoint of train.py (missing '{k}'){afresh}")
+    ckpt = upgrade_checkpoint(ckpt, path)
+    other = "; use another --out" if resume else ""
+    if expect_config is not None and model_part(expect_config) != model_part(ckpt["config"]):
+        have, want = model_part(ckpt["config"]), model_part(expect_config)
+        raise CheckpointError(f"{path}: checkpoint is from another config ({', '.join(k for k in have if have[k] != want[k])} differ){other}")
+    if expect_rig is not None and ckpt["rig"] != expect_rig.to_dict():
+        raise CheckpointError(f"{path}: checkpoint is from another rig{other}")
+    return ckpt
+
+
+def load_checkpoint(path, expect_config: dict | None = None):
+    """-> (model, config, checkpoint dict): `read_checkpoint` and the model it holds."""
+    ckpt = read_checkpoint(path, expect_config)
+    rig = rig_from_dict(ckpt["rig"], f"{Path(path)}: rig")
+    model = build_model(ckpt["config"], rig, ckpt["num_classes"])
     load_weights(model, ckpt["model"], path)
-    return model, cfg, ckpt
+    return model, ckpt["config"], ckpt
 
 
 def load_weights(model, state, path) -> None:

@@ -6,18 +6,21 @@ from __future__ import annotations
 import torch.nn.functional as F
 from torch import nn
 
+from dataset_tools.labels.classes import TRAIN_CLASSES
+
 from .bev_encoder import BevEncoder
 from .encoder import ImageEncoder
 from .frustum import Frustum
 from .pooling import make_pooling
 from .splat import splat, splat_count, splat_index
 
+NUM_CLASSES = len(TRAIN_CLASSES)  # the default class list: invalid (never predicted) and the K-1 the semantic head scores
 
 
 def make_encoder(mcfg: dict) -> nn.Module:
     """The image encoder of `model.trunk`: the from-scratch trunk or the pretrained EfficientNet-Lite0."""
     d, c = mcfg["depth"], mcfg["context_channels"]
-    if mcfg.get("trunk", "scratch") == "efficientnet_lite0":  # .get: checkpoints written before the option
+    if mcfg["trunk"] == "efficientnet_lite0":
         from .efficientnet import EfficientNetLite0Encoder
 
         return EfficientNetLite0Encoder(mcfg["stride"], d["bins"], c, mcfg["encoder"]["widths"][-1], mcfg["norm"], mcfg["dropout"])
@@ -25,7 +28,7 @@ def make_encoder(mcfg: dict) -> nn.Module:
 
 
 class LSSFisheye(nn.Module):
-    def __init__(self, mcfg: dict, frustum: Frustum, num_classes: int = 5):
+    def __init__(self, mcfg: dict, frustum: Frustum, num_classes: int = NUM_CLASSES):
         """mcfg: the config's `model` section; frustum: the lift geometry of the config and rig."""
         super().__init__()
         self.frustum = frustum

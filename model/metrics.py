@@ -12,10 +12,12 @@ from __future__ import annotations
 
 import torch
 
+from .lss import NUM_CLASSES
+
 VISIBLE = 0.5
 
 
-def confusion(pred, target, visibility, num_classes: int = 5) -> torch.Tensor:
+def confusion(pred, target, visibility, num_classes: int = NUM_CLASSES) -> torch.Tensor:
     """(K, K) int64 counts [true, pred] over valid, visible cells; pred and target in 0..K-1."""
     keep = (target > 0) & (visibility >= VISIBLE)
     idx = target[keep].long() * num_classes + pred[keep].long()
@@ -49,10 +51,10 @@ class BevMetrics:
         self.occ = torch.zeros(2, 2, dtype=torch.int64)
 
     @torch.no_grad()
-    def update(self, out: dict, batch: dict):
-        pred = out["semantic"].argmax(1) + 1  # logits over classes 1..K-1
-        self.cm += confusion(pred.cpu(), batch["semantic"].cpu(), batch["visibility"].cpu(), self.k)
-        self.occ += occlusion_confusion(out["occlusion"].cpu(), batch["visibility"].cpu())
+    def update(self, pred, batch: dict):
+        """pred: a model.predict.Prediction of the batch."""
+        self.cm += confusion(pred.classes.cpu(), batch["semantic"].cpu(), batch["visibility"].cpu(), self.k)
+        self.occ += occlusion_confusion(pred.occlusion_logit.cpu(), batch["visibility"].cpu())
 
     def merge_(self, other_cm: torch.Tensor, other_occ: torch.Tensor):
         self.cm += other_cm

@@ -9,7 +9,7 @@ from geometry.rig import Rig
 
 def _cylinder(cfg: dict) -> tuple[float, float] | None:
     d = cfg["data"]
-    if d.get("rectify", "none") == "none":  # .get: checkpoints written before the option
+    if d["rectify"] == "none":
         return None
     c = d["cylinder"]
     return c["hfov_deg"], c["vfov_deg"]

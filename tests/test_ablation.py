@@ -65,12 +65,20 @@ def test_every_row_trains_is_scored_and_lands_in_the_tables(tiny_with_test_split
 
 
 def test_bad_arguments_are_one_line_errors(tmp_path):
+    import subprocess
+    import sys
+
     from common.errors import InputError
 
     with pytest.raises(InputError, match="--rows: unknown row 'nope'"):
         ablation.main(["--steps", "1", "--rows", "nope", "--out", str(tmp_path / "o")])
     with pytest.raises(InputError, match="--budget-minutes"):
         ablation.main(["--budget-minutes", "0", "--out", str(tmp_path / "o")])
+    for args, message in [(["--steps", "1", "--budget-minutes", "1"], "argument --budget-minutes: not allowed with argument --steps"),
+                          (["--steps", "many"], "argument --steps: invalid int value: 'many'"),
+                          ([], "one of the arguments --budget-minutes --steps is required")]:
+        r = subprocess.run([sys.executable, "-m", "experiments.ablation", *args, "--out", str(tmp_path / "o")], capture_output=True, text=True)
+        assert r.returncode == 2 and r.stderr.strip() == f"error: experiments.ablation: {message} (see --help)", r.stderr
 
 
 def test_a_time_budget_trains_in_resumable_chunks(tiny_with_test_splits, tmp_path):

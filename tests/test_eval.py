@@ -1,4 +1,4 @@
-"""The evaluation protocol: IoU on constructed cases, and eval.py end to end on a trained checkpoint."""
+"""The evaluation protocol (model.evaluation): IoU on constructed cases, and eval.py end to end on a trained checkpoint."""
 
 import json
 import math
@@ -7,8 +7,9 @@ import numpy as np
 import pytest
 import torch
 
-import eval as evaluation
 from geometry.bev import BevGrid
+from model import evaluation
+from model.eval_report import markdown_table
 
 NAMES = ["invalid", "vehicle", "lane_marking", "street", "background"]
 GRID = BevGrid(x_min=-4, x_max=4, y_min=-4, y_max=4, res=1.0)  # 8 x 8
@@ -18,7 +19,7 @@ def scores_of(pred, truth, vis, occ_logit=None):
     s = evaluation.SplitScores(NAMES, GRID)
     pred, truth, vis = (torch.as_tensor(np.asarray(a)) for a in (pred, truth, vis))
     occ = torch.as_tensor(occ_logit) if occ_logit is not None else torch.where(vis >= 0.5, 5.0, -5.0)
-    s.update(pred, occ, truth, vis, "clear_noon")
+    s.add_frame(pred, occ, truth, vis, "clear_noon")
     return s.result()
 
 
@@ -95,7 +96,7 @@ def test_occlusion_iou_and_distance_bands():
 def test_table_has_the_papers_columns():
     truth = layout()
     res = {"easy": scores_of(truth, truth, np.ones((8, 8), np.float32))}
-    table = evaluation.markdown_table(res, "ours")
+    table = markdown_table(res, "ours")
     assert table.splitlines()[0] == "| Method | Image type | Dataset | mIoU | Occlusions | Vehicles | Markings | Street | Background |"
     assert "| ours | Raw distorted | easy | " in table
 
@@ -147,6 +148,13 @@ def test_eval_of_a_trained_checkpoint_equals_a_recomputation_from_its_prediction
         assert res["overall"][f"iou/{n}"] == pytest.approx(v, nan_ok=True), n
     assert res["overall"]["miou"] == pytest.approx(np.nanmean(list(ious.values())))
 
+    # a run folder stands for its latest.pt; the output goes to the run's eval/ by default
+    r = subprocess.run([sys.executable, "eval.py", "--checkpoint", str(tmp_path / "run"), "--split", "train", "--pictures", "0",
+                        "--threads", "1"], capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr[-2000:]
+    again = json.loads((tmp_path / "run" / "eval" / "metrics.json").read_text())
+    assert again["checkpoint"] == str(tmp_path / "run" / "latest.pt") and again["splits"]["train"]["confusion"] == res["confusion"]
+
     # bad input: one line naming the problem, exit 2, no traceback
     ckpt = str(tmp_path / "run" / "latest.pt")
     garbage = tmp_path / "garbage.pt"
@@ -156,6 +164,7 @@ def test_eval_of_a_trained_checkpoint_equals_a_recomputation_from_its_prediction
         (["--checkpoint", str(garbage)], "garbage.pt: not a readable checkpoint"),
         (["--checkpoint", ckpt, "--split", "hard"], "split 'hard' has no frames"),
         (["--checkpoint", ckpt, "--config", "configs/train/pool_max.yaml"], "checkpoint is from another config"),
+        (["--checkpoint", ckpt, "--bogus"], "eval.py: unrecognized arguments: --bogus"),
     ]:
         r = subprocess.run([sys.executable, "eval.py", "--out", str(tmp_path / "bad"), *args], capture_output=True, text=True, timeout=300)
         assert r.returncode == 2, (args, r.stderr)

@@ -17,6 +17,7 @@ from model.config import ConfigError, validate
 from model.frustum import camera_point_cells, depth_bins, feature_camera
 from model.losses import class_weights, occlusion_loss, semantic_loss
 from model.metrics import BevMetrics, confusion
+from model.predict import decode
 from model.splat import splat
 
 GRID = BevGrid(res=0.25)
@@ -215,11 +216,11 @@ def test_metrics_confusion_and_iou():
     m = BevMetrics(["invalid", "vehicle", "lane_marking", "street", "background"])
     logits = torch.nn.functional.one_hot(true.clamp(min=1) - 1, 4).permute(0, 3, 1, 2).float()
     occ = torch.where(vis >= 0.5, 3.0, -3.0)
-    m.update({"semantic": logits, "occlusion": occ}, {"semantic": true, "visibility": vis})
+    m.update(decode({"semantic": logits, "occlusion": occ}), {"semantic": true, "visibility": vis})
     res = m.compute()
     assert res["miou"] == 1.0 and res["iou/vehicle"] == 1.0 and res["iou/occlusion"] == 1.0
     m.reset()
-    m.update({"semantic": logits.roll(1, 1), "occlusion": -occ}, {"semantic": true, "visibility": vis})
+    m.update(decode({"semantic": logits.roll(1, 1), "occlusion": -occ}), {"semantic": true, "visibility": vis})
     assert m.compute()["miou"] == 0.0
 
 
@@ -236,6 +237,8 @@ def test_config_validation_and_train_cli_exit_code(tmp_path):
     assert r.returncode == 2
     assert r.stderr.strip().count("\n") == 0 and "train.batch_size" in r.stderr and str(bad) in r.stderr
     assert "Traceback" not in r.stderr
+    r = subprocess.run([sys.executable, "train.py", "--bogus"], capture_output=True, text=True)
+    assert r.returncode == 2 and r.stderr.strip() == "error: train.py: unrecognized arguments: --bogus (see --help)", r.stderr
 
 
 def test_every_shipped_config_validates():
@@ -268,6 +271,60 @@ def test_checkpoint_roundtrip_and_refuses_other_config(tmp_path):
     (tmp_path / "junk.pt").write_bytes(b"not a checkpoint")
     with pytest.raises(CheckpointError, match="junk.pt"):
         load_checkpoint(tmp_path / "junk.pt")
+
+
+def test_an_older_checkpoint_is_upgraded_in_one_place(tmp_path):
+    """A checkpoint written before model.trunk, data.rectify and num_classes existed loads (the
+    reader fills their defaults), predicts the same, and is not taken for another config."""
+    from model import NUM_CLASSES, read_checkpoint
+    from model.checkpoint import upgrade_checkpoint
+
+    torch.manual_seed(0)
+    rig = load_rig("configs/rigs/default.yaml")
+    cfg = small_cfg()
+    model = build_model(cfg, rig)
+    old = {k: {f: v for f, v in sec.items() if (k, f) not in (("model", "trunk"), ("data", "rectify"))} for k, sec in cfg.items()}
+    assert "trunk" not in old["model"] and "rectify" not in old["data"]
+    path = tmp_path / "old.pt"
+    save_checkpoint(path, {"config": old, "rig": rig.to_dict(), "model": model.state_dict()})
+    loaded, cfg2, ck = load_checkpoint(path, expect_config=cfg)
+    assert cfg2["model"]["trunk"] == "scratch" and cfg2["data"]["rectify"] == "none" and ck["num_classes"] == NUM_CLASSES == 5
+    x = torch.rand(1, 4, 3, 40, 64)
+    model.eval(), loaded.eval()
+    assert torch.equal(model(x)["semantic"], loaded(x)["semantic"])
+    with pytest.raises(CheckpointError, match=r"x.pt: config\.model\.pooling: must be one of"):
+        upgrade_checkpoint({"config": {"model": {"pooling": "mean"}}}, "x.pt")
+    # resuming needs the training state too, and says how to start afresh
+    with pytest.raises(CheckpointError, match=r"old.pt: not a checkpoint of train.py \(missing 'optimizer'\); move it away"):
+        read_checkpoint(path, resume=True)
+    with pytest.raises(CheckpointError, match="old.pt: checkpoint is from another rig"):
+        read_checkpoint(path, expect_rig=load_rig("configs/rigs/mixed.yaml"))
+
+
+def test_zero_intervals_are_valid_and_cross_field_checks_remain():
+    """The schema holds the bounds (0 = at epoch ends only / no per-step scalars); only what the
+    schema cannot say is checked after it."""
+    cfg = validate({"train": {"checkpoint_every": 0, "log_every": 0}}, "c.yaml")
+    assert cfg["train"]["checkpoint_every"] == 0 and cfg["train"]["log_every"] == 0
+    with pytest.raises(ConfigError, match=r"train\.batch_size: must be a whole number in \[1, 4096\], got 0"):
+        validate({"train": {"batch_size": 0}}, "c.yaml")
+    with pytest.raises(ConfigError, match=r"model\.depth: need min < max"):
+        validate({"model": {"depth": {"min": 5.0, "max": 2.0}}}, "c.yaml")
+    with pytest.raises(ConfigError, match=r"model\.stride: must be a power of 2"):
+        validate({"model": {"stride": 6}}, "c.yaml")
+
+
+def test_predict_gives_class_ids_and_visibility():
+    from model import Prediction, predict
+
+    torch.manual_seed(0)
+    model = build_model(small_cfg(), load_rig("configs/rigs/default.yaml")).eval()
+    batch = {"images": torch.rand(2, 4, 3, 40, 64)}
+    with torch.no_grad():
+        out, pred = model(batch["images"]), predict(model, batch)
+    assert isinstance(pred, Prediction) and pred.classes.shape == out["occlusion"].shape == (2, *model.grid.shape)
+    assert torch.equal(pred.classes, out["semantic"].argmax(1) + 1) and pred.classes.min() >= 1 and pred.classes.max() <= 4
+    assert torch.equal(pred.visibility, torch.sigmoid(out["occlusion"]))
 
 
 @pytest.mark.parametrize("stride", [4, 8])

@@ -174,10 +174,10 @@ def label_grid(root):
 def evaluate_checkpoint(model, cfg, root):
     from dataset_tools.format.reader import DatasetIndex
     from model.data import BevDataset
-    from train import evaluate
+    from model.evaluation import validation_scores
 
     ds = BevDataset(DatasetIndex(root), "train", cfg, train=False)
-    return evaluate(model, ds, cfg, torch.device("cpu"), 0, 1)
+    return validation_scores(model, ds, cfg, torch.device("cpu"), 0, 1)
 
 
 def overfit(root, tmp_path, steps=60):

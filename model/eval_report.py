@@ -1,0 +1,95 @@
+"""eval.py's outputs drawn from its scores: the Markdown table laid out as the paper's Table I,
+the confusion-matrix picture and the per-frame pictures as the paper's Figs. 6-8."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from common.files import write_figure_atomic
+from dataset_tools import TRAIN_PALETTE, colorize_train
+
+TABLE_COLUMNS = [("miou", "mIoU"), ("iou/occlusion", "Occlusions"), ("iou/vehicle", "Vehicles"),
+                 ("iou/lane_marking", "Markings"), ("iou/street", "Street"), ("iou/background", "Background")]
+
+
+def _fmt(v) -> str:
+    return "-" if v is None or v != v else f"{v:.3f}"  # NaN (class absent from truth and prediction) -> "-"
+
+
+def markdown_table(results: dict, method: str) -> str:
+    head = "| Method | Image type | Dataset | " + " | ".join(t for _, t in TABLE_COLUMNS) + " |"
+    lines = [head, "|" + "---|" * (3 + len(TABLE_COLUMNS))]
+    for split, r in results.items():
+        o = r["overall"]
+        lines.append(f"| {method} | Raw distorted | {split} | " + " | ".join(_fmt(o.get(k)) for k, _ in TABLE_COLUMNS) + " |")
+    for split, r in results.items():
+        for group in ("bands", "weather"):
+            if len(r[group]) < 2:
+                continue
+            lines += ["", f"{split}, by {'distance band' if group == 'bands' else 'weather'}:", "",
+                      f"| {group[:-1] if group == 'bands' else 'weather'} | " + " | ".join(t for _, t in TABLE_COLUMNS) + " |",
+                      "|" + "---|" * (1 + len(TABLE_COLUMNS))]
+            for name, o in r[group].items():
+                lines.append(f"| {name} | " + " | ".join(_fmt(o.get(k)) for k, _ in TABLE_COLUMNS) + " |")
+    lines += ["", "Inference: " + ", ".join(f"{s} {r['inference_ms_per_frame']:.1f} ms/frame" for s, r in results.items())]
+    return "\n".join(lines) + "\n"
+
+
+def frame_picture(path: Path, images: dict, truth, vis, pred, pred_vis, class_names, title: str):
+    """The four fisheye images, the truth (dimmed where invisible), the prediction, the visibility."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.patches import Patch
+
+    names = list(images)
+    fig = plt.figure(figsize=(16, 7.4))
+    gs = fig.add_gridspec(2, max(4, len(names)), height_ratios=[1, 1.6])
+    for i, n in enumerate(names):
+        ax = fig.add_subplot(gs[0, i])
+        ax.imshow(images[n])
+        ax.set_title(n, fontsize=9)
+        ax.axis("off")
+    panels = [(colorize_train(truth, vis), "truth (dimmed: p(o) < 0.5)"), (colorize_train(pred), "prediction"),
+              (vis, "true visibility p(o)"), (pred_vis, "predicted visibility")]
+    for i, (img, t) in enumerate(panels):
+        ax = fig.add_subplot(gs[1, i])
+        ax.imshow(img, cmap="magma", vmin=0, vmax=1) if img.ndim == 2 else ax.imshow(img)
+        ax.plot([img.shape[1] / 2 - 0.5], [img.shape[0] / 2 - 0.5], marker="^", color="cyan", ms=5)  # ego origin, facing up
+        ax.set_title(t, fontsize=9)
+        ax.axis("off")
+    fig.legend(handles=[Patch(facecolor=TRAIN_PALETTE[i] / 255, edgecolor="black", label=n) for i, n in enumerate(class_names) if i > 0],
+               loc="lower center", ncol=len(class_names) - 1, fontsize=9)
+    fig.suptitle(title, fontsize=10)
+    _save_fig(fig, path)
+
+
+def confusion_picture(path: Path, cm: np.ndarray, class_names, title: str):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    cm = np.asarray(cm, dtype=np.float64)[1:, 1:]  # invalid is never scored
+    names = class_names[1:]
+    rows = cm / np.maximum(cm.sum(1, keepdims=True), 1)
+    fig, ax = plt.subplots(figsize=(5.5, 4.8))
+    ax.imshow(rows, cmap="Blues", vmin=0, vmax=1)
+    for i in range(len(names)):
+        for j in range(len(names)):
+            ax.text(j, i, f"{rows[i, j]:.2f}\n{int(cm[i, j])}", ha="center", va="center", fontsize=7,
+                    color="white" if rows[i, j] > 0.5 else "black")
+    ax.set_xticks(range(len(names)), names, rotation=30, fontsize=8)
+    ax.set_yticks(range(len(names)), names, fontsize=8)
+    ax.set_xlabel("predicted")
+    ax.set_ylabel("true (visible cells)")
+    ax.set_title(title, fontsize=9)
+    fig.tight_layout()
+    _save_fig(fig, path)
+
+
+def _save_fig(fig, path: Path):
+    write_figure_atomic(fig, path, dpi=80)

@@ -1,0 +1,194 @@
+"""Scoring a model: one loop (`score`) under validation during training (`validation_scores`),
+eval.py (`evaluate_checkpoint`) and the ablation (`open_checkpoint` + `evaluate_splits`).
+
+The protocol (docs/evaluation.md): per split, one confusion matrix over the whole split on cells
+whose true visibility p(o) >= 0.5 and whose true class is valid; occlusion IoU of the binarised
+visibility over every cell; the same by distance band and by weather preset, and inference time
+per frame.
+"""
+
+from __future__ import annotations
+
+import io
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+import torch.distributed as dist
+from torch.utils.data import DataLoader, Subset
+
+from common.errors import InputError
+from common.files import output_dir, write_bytes_atomic, write_json_atomic, write_text_atomic
+from dataset_tools import SPLITS, DatasetIndex, read_frame
+
+from .checkpoint import load_checkpoint
+from .data import BevDataset
+from .eval_report import confusion_picture, frame_picture, markdown_table
+from .metrics import BevMetrics, confusion, occlusion_confusion
+from .predict import predict, to_device
+from .run_dir import EvalDir, RunDir, checkpoint_path, frame_name
+
+BANDS = ((0.0, 10.0), (10.0, 20.0), (20.0, 25.0))
+
+
+class EvalError(InputError):
+    pass
+
+
+@torch.no_grad()
+def score(model, ds, on_batch, frames=None, batch_size: int = 1, num_workers: int = 0, device=None,
+          rank: int = 0, world: int = 1, desc: str | None = None) -> float:
+    """`model` (in eval mode; its mode is restored after) over the frames `frames` of `ds` (default
+    all; this process's share rank::world), calling on_batch(prediction, batch) for each batch.
+    -> seconds spent in the model. The loader has its own generator, so scoring never draws from
+    the global RNG (a resumed run stays identical to an uninterrupted one)."""
+    training = model.training
+    model.eval()
+    indices = list(range(len(ds)) if frames is None else frames)[rank::world]
+    loader = DataLoader(Subset(ds, indices), batch_size=batch_size, num_workers=num_workers, generator=torch.Generator())
+    if desc is not None:
+        from tqdm import tqdm
+
+        loader = tqdm(loader, desc=desc, dynamic_ncols=True)
+    seconds = 0.0
+    for batch in loader:
+        if device is not None:
+            batch = to_device(batch, device)
+        t0 = time.perf_counter()
+        pred = predict(model, batch)
+        seconds += time.perf_counter() - t0
+        on_batch(pred, batch)
+    model.train(training)
+    return seconds
+
+
+def validation_scores(model, ds, cfg, device, rank: int = 0, world: int = 1) -> dict:
+    """Validation metrics of `model` on `ds` (train.val_max_frames of it; each process scores its
+    share, then all-reduce)."""
+    metrics = BevMetrics(ds.class_names)
+    t = cfg["train"]
+    n = len(ds) if not t["val_max_frames"] else min(len(ds), t["val_max_frames"])
+    score(model, ds, metrics.update, range(n), max(1, t["batch_size"] // world), cfg["data"]["num_workers"], device, rank, world)
+    if world > 1:
+        for m in (metrics.cm, metrics.occ):
+            dist.all_reduce(m)
+    return metrics.compute()
+
+
+def band_masks(grid) -> dict[str, torch.Tensor]:
+    """Band name -> (X, Y) bool mask of the cells whose centre lies in that distance band."""
+    dist_m = torch.from_numpy(np.linalg.norm(grid.cell_centres(), axis=-1))
+    return {f"{lo:g}-{hi:g} m": (dist_m >= lo) & (dist_m < hi) for lo, hi in BANDS}
+
+
+class SplitScores:
+    """Confusion matrices of one split: overall, per distance band and per weather preset."""
+
+    def __init__(self, class_names, grid):
+        self.class_names = class_names
+        self.overall = BevMetrics(class_names)
+        self.bands = {name: (mask, BevMetrics(class_names)) for name, mask in band_masks(grid).items()}
+        self.weather: dict[str, BevMetrics] = {}
+        self.frames = 0
+        self.seconds = 0.0
+
+    def add_frame(self, pred: torch.Tensor, occ_logit: torch.Tensor, semantic, visibility, weather: str):
+        """One frame: pred (X, Y) class ids, occ_logit (X, Y) visibility logits, truth (X, Y)."""
+        k = len(self.class_names)
+        cm, occ = confusion(pred, semantic, visibility, k), occlusion_confusion(occ_logit, visibility)
+        self.overall.merge_(cm, occ)
+        self.weather.setdefault(weather or "unknown", BevMetrics(self.class_names)).merge_(cm, occ)
+        for mask, m in self.bands.values():
+            m.merge_(confusion(pred[mask], semantic[mask], visibility[mask], k),
+                     occlusion_confusion(occ_logit[mask], visibility[mask]))
+        self.frames += 1
+
+    def result(self) -> dict:
+        return {
+            "frames": self.frames,
+            "inference_ms_per_frame": 1000 * self.seconds / max(self.frames, 1),
+            "overall": self.overall.compute(),
+            "confusion": self.overall.cm.tolist(),
+            "occlusion_confusion": self.overall.occ.tolist(),
+            "bands": {n: m.compute() for n, (_, m) in self.bands.items()},
+            "weather": {n: m.compute() for n, m in sorted(self.weather.items())},
+        }
+
+
+def evaluate_split(model, cfg, index: DatasetIndex, split: str, out: EvalDir, pictures: int = 0, save_predictions: bool = False) -> dict:
+    """The protocol on one split, frame by frame; writes the split's confusion picture, `pictures`
+    frame pictures and (save_predictions) every frame's prediction into `out`."""
+    ds = BevDataset(index, split, cfg, train=False)
+    if len(ds) == 0:
+        raise EvalError(f"{index.root}: split '{split}' has no frames")
+    scores = SplitScores(ds.class_names, ds.grid)
+    picture_at = set(np.linspace(0, len(ds) - 1, min(pictures, len(ds))).round().astype(int).tolist()) if pictures else set()
+    if save_predictions:
+        out.predictions.mkdir(parents=True, exist_ok=True)
+
+    def on_batch(pred, batch):
+        for j, i in enumerate(batch["index"].tolist()):
+            ref = ds.refs[i]
+            classes, occ = pred.classes[j].cpu(), pred.occlusion_logit[j].cpu()
+            semantic, visibility = batch["semantic"][j].cpu(), batch["visibility"][j].cpu()
+            scores.add_frame(classes, occ, semantic, visibility, ref.weather)
+            name = frame_name(ref)
+            if save_predictions:
+                buf = io.BytesIO()
+                np.savez_compressed(buf, semantic=classes.numpy().astype(np.uint8), occlusion_logit=occ.numpy())
+                write_bytes_atomic(out.prediction(name), buf.getvalue())
+            if i in picture_at:
+                images = read_frame(ref, cameras=ds.names)["images"]
+                frame_picture(out.frame(split, name), images, semantic.numpy(), visibility.numpy(), classes.numpy(),
+                              torch.sigmoid(occ).numpy(), ds.class_names, f"{split}: {ref.scene} frame {ref.frame} ({ref.weather})")
+
+    scores.seconds = score(model, ds, on_batch, desc=f"eval {split}")
+    res = scores.result()
+    confusion_picture(out.confusion(split), res["confusion"], ds.class_names, f"{split}: rows normalised, visible cells")
+    return res
+
+
+def open_checkpoint(checkpoint, data=None, expect_config: dict | None = None):
+    """-> (model in eval mode, config, checkpoint dict, DatasetIndex) for scoring a checkpoint on
+    its data set (or on `data`, a data set root with the same cameras and classes)."""
+    if not Path(checkpoint).is_file():
+        raise EvalError(f"{checkpoint}: no such checkpoint")
+    model, cfg, ckpt = load_checkpoint(checkpoint, expect_config=expect_config)
+    model.eval()
+    if data:
+        cfg = {**cfg, "data": {**cfg["data"], "root": data}}
+    index = DatasetIndex(cfg["data"]["root"])
+    if index.rig.names != list(ckpt["rig"]["cameras"]):
+        raise EvalError(f"{index.root}: rig cameras {index.rig.names} differ from the checkpoint's {list(ckpt['rig']['cameras'])}")
+    if len(index.class_names) != ckpt["num_classes"]:
+        raise EvalError(f"{index.root}: {len(index.class_names)} classes, the checkpoint predicts {ckpt['num_classes']}")
+    return model, cfg, ckpt, index
+
+
+def evaluate_splits(model, cfg, index: DatasetIndex, splits, out: EvalDir, pictures: int = 0, save_predictions: bool = False) -> dict:
+    """Split -> `evaluate_split` result, each split scored alone."""
+    out.root.mkdir(parents=True, exist_ok=True)
+    return {s: evaluate_split(model, cfg, index, s, out, pictures, save_predictions) for s in splits}
+
+
+def evaluate_checkpoint(checkpoint, split: str = "all", out=None, data=None, expect_config: dict | None = None,
+                        pictures: int = 4, save_predictions: bool = False) -> tuple[str, EvalDir]:
+    """eval.py: score a checkpoint (or a run folder's latest.pt) on `split` (one of SPLITS, or all:
+    every split that has frames); writes metrics.json and table.md (and the pictures) into `out`
+    (default: the run folder's eval/). -> (the Markdown table, the output folder)."""
+    checkpoint = checkpoint_path(checkpoint)
+    model, cfg, ckpt, index = open_checkpoint(checkpoint, data, expect_config)
+    splits = [s for s in SPLITS if index.splits.get(s)] if split == "all" else [split]
+    if not splits:
+        raise EvalError(f"{index.root}: no split has frames")
+    out = EvalDir(out) if out else RunDir.of_checkpoint(checkpoint).eval
+    output_dir(out.root)
+    results = evaluate_splits(model, cfg, index, splits, out, pictures, save_predictions)
+    method = f"LSS-fisheye ({Path(checkpoint).parent.name}, {cfg['model']['pooling']} pooling)"
+    report = {"checkpoint": str(checkpoint), "data": str(cfg["data"]["root"]), "step": ckpt.get("step"),
+              "class_names": index.class_names, "splits": results}
+    write_json_atomic(out.metrics, report, indent=2)
+    table = markdown_table(results, method)
+    write_text_atomic(out.table, table)
+    return table, out

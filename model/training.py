@@ -1,0 +1,328 @@
+"""Training: the fit loop of train.py and the ablation, exact resume, and training to a time budget.
+
+    res = train(cfg, Path("runs/x"))     # resumes from runs/x/latest.pt when there is one
+    state = train_with_budget(cfg, Path("runs/x"), budget_s=600)   # the ablation's rows
+
+Read it top to bottom: prepare -> resume -> (train_one_epoch, validate, save_checkpoint) per epoch.
+A resumed run continues exactly as an uninterrupted one (same weights bit for bit): the data order
+comes from (seed, epoch), augmentation from (seed, epoch, sample), and only the model's dropout
+draws from the global RNG, whose state the checkpoint carries.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import signal
+import sys
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import torch
+import torch.distributed as dist
+from torch.utils.data import DataLoader
+
+from common.errors import ConfigError, MachineError
+from common.files import clean_stale_temps, read_json, write_json_atomic
+from common.schema import deep_merge
+from dataset_tools import DatasetIndex, colorize_train
+
+from .checkpoint import CheckpointError, build_model, load_weights, read_checkpoint, save_checkpoint
+from .data import BevDataset, DataError
+from .evaluation import validation_scores
+from .losses import class_weights, total_loss
+from .predict import decode, forward, to_device
+from .run_dir import RunDir
+
+
+class EpochBatches:
+    """This process's share of each global batch of an epoch, from a permutation seeded by
+    (seed, epoch); starts at batch `start` (resume). Incomplete last batches are dropped."""
+
+    def __init__(self, n: int, batch: int, seed: int, epoch: int, rank: int, world: int, start: int = 0, shuffle=True):
+        self.n, self.batch, self.rank, self.world, self.start = n, batch, rank, world, start
+        g = torch.Generator().manual_seed(seed * 7919 + epoch)
+        self.order = torch.randperm(n, generator=g).tolist() if shuffle else list(range(n))
+
+    def __len__(self):
+        return max(0, self.n // self.batch - self.start)
+
+    def __iter__(self):
+        for k in range(self.start, self.n // self.batch):
+            yield self.order[k * self.batch : (k + 1) * self.batch][self.rank :: self.world]
+
+
+class GracefulStop:
+    """Ctrl-C / SIGTERM (single process): finish the step, save latest.pt, exit; a second Ctrl-C
+    stops at once. Under DDP the default handling stays (ranks could stop at different steps)."""
+
+    def __init__(self, world: int):
+        self.requested = False
+        if world == 1 and threading.current_thread() is threading.main_thread():
+            signal.signal(signal.SIGINT, self._on_signal)
+            signal.signal(signal.SIGTERM, self._on_signal)
+
+    def _on_signal(self, signum, frame):
+        if self.requested:
+            raise KeyboardInterrupt
+        self.requested = True
+
+
+@dataclass
+class Run:
+    """Everything one training process holds."""
+
+    cfg: dict
+    out: Path
+    rank: int
+    world: int
+    device: torch.device
+    index: DatasetIndex
+    train_ds: BevDataset
+    val_ds: BevDataset | None
+    model: torch.nn.Module
+    opt: torch.optim.Optimizer
+    quiet: bool = False
+    step: int = 0
+    epoch: int = 0
+    step_in_epoch: int = 0
+    best: float = -1.0
+    history: list = field(default_factory=list)
+    last_val: dict | None = None
+    writer: object = None
+    ddp: torch.nn.Module | None = None
+    stop: GracefulStop | None = None
+
+    @property
+    def dir(self) -> RunDir:
+        return RunDir(self.out)
+
+    @property
+    def latest(self) -> Path:
+        return self.dir.latest
+
+    @property
+    def main(self) -> bool:
+        return self.rank == 0
+
+
+def setup_distributed(device_kind: str):
+    world = int(os.environ.get("WORLD_SIZE", "1"))
+    rank = int(os.environ.get("RANK", "0"))
+    local = int(os.environ.get("LOCAL_RANK", "0"))
+    if device_kind == "cuda" and not torch.cuda.is_available():
+        raise MachineError("train.device: cuda, but this machine has no CUDA device (use auto or cpu)")
+    cuda = device_kind == "cuda" or (device_kind == "auto" and torch.cuda.is_available())
+    device = torch.device(f"cuda:{local}" if cuda else "cpu")
+    if cuda:
+        torch.cuda.set_device(device)
+    if world > 1:
+        dist.init_process_group("nccl" if cuda else "gloo")
+    return rank, world, device
+
+
+def prepare(cfg: dict, out: Path, quiet: bool = False) -> Run:
+    """Data sets, model and optimiser of a fresh run (seeded)."""
+    t = cfg["train"]
+    if t["threads"]:
+        torch.set_num_threads(t["threads"])
+    rank, world, device = setup_distributed(t["device"])
+    if t["batch_size"] % world:
+        raise ConfigError(f"train.batch_size: {t['batch_size']} is not divisible by {world} processes")
+    index = DatasetIndex(cfg["data"]["root"])
+    train_ds = BevDataset(index, cfg["data"]["train_split"], cfg, train=True)
+    val_split = cfg["data"]["val_split"]
+    if val_split and val_split not in index.splits:
+        raise ConfigError(f"data.val_split: no split '{val_split}' in {index.root} (have: {', '.join(index.splits)}; '' for none)")
+    val_ds = BevDataset(index, val_split, cfg, train=False) if val_split and index.splits[val_split] else None
+    if len(train_ds) < t["batch_size"]:
+        raise DataError(f"{index.root}: split '{cfg['data']['train_split']}' has {len(train_ds)} frames, fewer than train.batch_size {t['batch_size']}")
+    torch.manual_seed(t["seed"])
+    model = build_model(cfg, index.rig, len(index.class_names)).to(device)
+    if world > 1 and cfg["model"]["norm"] == "batch" and device.type == "cuda":
+        # batch statistics over the global batch (on CPU, BatchNorm stays per process; GroupNorm,
+        # the default, needs neither)
+        model = torch.nn.SyncBatchNorm.convert_sync_batchnorm(model)
+    opt = torch.optim.Adam(model.parameters(), lr=t["lr"], weight_decay=t["weight_decay"])
+    return Run(cfg, out, rank, world, device, index, train_ds, val_ds, model, opt, quiet)
+
+
+def checkpoint_state(run: Run) -> dict:
+    return {"config": run.cfg, "rig": run.index.rig.to_dict(), "num_classes": len(run.index.class_names),
+            "model": run.model.state_dict(), "optimizer": run.opt.state_dict(), "step": run.step, "epoch": run.epoch,
+            "step_in_epoch": run.step_in_epoch, "best": run.best, "rng": torch.get_rng_state(),
+            "cuda_rng": torch.cuda.get_rng_state(run.device) if run.device.type == "cuda" else None}
+
+
+def resume(run: Run) -> None:
+    """Continue from latest.pt if there is one: weights, optimiser, counters and RNG."""
+    clean_stale_temps(run.out, recursive=False)  # a kill during a save leaves .latest.pt.<pid>.tmp.pt
+    if not run.latest.is_file():
+        return
+    ckpt = read_checkpoint(run.latest, expect_config=run.cfg, expect_rig=run.index.rig, resume=True)
+    load_weights(run.model, ckpt["model"], run.latest)
+    try:
+        run.opt.load_state_dict(ckpt["optimizer"])
+        torch.set_rng_state(ckpt["rng"])
+    except (RuntimeError, ValueError, KeyError, TypeError) as exc:
+        raise CheckpointError(f"{run.latest}: does not fit this model ({str(exc).splitlines()[0][:120]})") from None
+    for g in run.opt.param_groups:  # the config's learning rate, also when changed for the resume (--set)
+        g["lr"], g["weight_decay"] = run.cfg["train"]["lr"], run.cfg["train"]["weight_decay"]
+    run.step, run.epoch, run.step_in_epoch, run.best = ckpt["step"], ckpt["epoch"], ckpt["step_in_epoch"], ckpt["best"]
+    if run.device.type == "cuda" and ckpt["cuda_rng"] is not None:
+        torch.cuda.set_rng_state(ckpt["cuda_rng"], run.device)
+    if run.main and not run.quiet:
+        print(f"resuming from {run.latest} at step {run.step} (epoch {run.epoch})", file=sys.stderr)
+
+
+def validate(run: Run) -> dict | None:
+    """Score the validation split; keep best.pt when mIoU improves."""
+    if run.val_ds is None:
+        return None
+    res = validation_scores(run.model, run.val_ds, run.cfg, run.device, run.rank, run.world)
+    if run.main:
+        for k, v in res.items():
+            if not math.isnan(v):
+                run.writer.add_scalar(f"val/{k}", v, run.step)
+        if res["miou"] > run.best:
+            run.best = res["miou"]
+            save_checkpoint(run.dir.best, checkpoint_state(run))
+    run.last_val = res
+    return res
+
+
+def log_step(run: Run, loss, parts: dict, out: dict, batch: dict, samples_per_s: float) -> None:
+    t = run.cfg["train"]
+    if t["log_every"] and (run.step % t["log_every"] == 0 or run.step == 1):
+        run.writer.add_scalar("train/loss", float(loss), run.step)
+        run.writer.add_scalar("train/semantic", float(parts["semantic"]), run.step)
+        run.writer.add_scalar("train/occlusion", float(parts["occlusion"]), run.step)
+        run.writer.add_scalar("train/samples_per_s", samples_per_s, run.step)
+    if t["image_every"] and run.step % t["image_every"] == 0:
+        pred = decode(out).classes[0].cpu().numpy()
+        truth, vis = batch["semantic"][0].cpu().numpy(), batch["visibility"][0].cpu().numpy()
+        pic = torch.from_numpy(colorize_train(pred)), torch.ones(truth.shape[0], 4, 3, dtype=torch.uint8) * 255, \
+            torch.from_numpy(colorize_train(truth, vis))
+        run.writer.add_image("bev/prediction_truth", torch.cat(pic, 1).permute(2, 0, 1).float() / 255.0, run.step)
+
+
+def train_one_epoch(run: Run, bar, alpha: torch.Tensor, max_steps: int | None) -> bool:
+    """Train from run.step_in_epoch to the end of run.epoch (or max_steps, or a stop request);
+    returns True when training is finished."""
+    cfg, t = run.cfg, run.cfg["train"]
+    loss_cfg = cfg["loss"]
+    run.train_ds.set_epoch(run.epoch)
+    sampler = EpochBatches(len(run.train_ds), t["batch_size"], t["seed"], run.epoch, run.rank, run.world, run.step_in_epoch)
+    # own generator: creating an iterator must not draw from the global RNG (dropout), or a
+    # resumed run would diverge from an uninterrupted one
+    loader = DataLoader(run.train_ds, batch_sampler=sampler, num_workers=cfg["data"]["num_workers"],
+                        generator=torch.Generator().manual_seed(t["seed"] + run.epoch))
+    batches = iter(loader)
+    t0, samples = time.time(), 0
+    while True:
+        try:
+            batch = next(batches)
+        except StopIteration:
+            return False
+        except Exception:
+            if run.stop.requested:  # data workers died of the same Ctrl-C: stop at the last whole step
+                return False
+            raise
+        batch = to_device(batch, run.device)
+        out = forward(run.ddp, batch)
+        loss, parts = total_loss(out, batch, alpha, loss_cfg["occlusion_weight"], loss_cfg["visibility_weighting"],
+                                 loss_cfg["occlusion_target"])
+        run.opt.zero_grad(set_to_none=True)
+        loss.backward()
+        if t["grad_clip"] > 0:
+            torch.nn.utils.clip_grad_norm_(run.model.parameters(), t["grad_clip"])
+        run.opt.step()
+        run.step += 1
+        run.step_in_epoch += 1
+        samples += t["batch_size"]
+        run.history.append(loss.item())
+        if not math.isfinite(run.history[-1]):
+            raise ConfigError(f"train: loss is {run.history[-1]} at step {run.step}; lower train.lr or check the data")
+        if run.main:
+            bar.update(1)
+            bar.set_postfix(loss=f"{run.history[-1]:.3f}")
+            log_step(run, run.history[-1], parts, out, batch, samples / max(time.time() - t0, 1e-9))
+        if t["val_every"] and run.step % t["val_every"] == 0:
+            validate(run)
+        if run.main and t["checkpoint_every"] and run.step % t["checkpoint_every"] == 0:
+            save_checkpoint(run.latest, checkpoint_state(run))
+        if max_steps is not None and run.step >= max_steps:
+            return True
+        if run.stop.requested:
+            return False
+
+
+def train(cfg: dict, out_dir: Path, quiet: bool = False) -> dict:
+    """Train a validated config in the run folder `out_dir` (resuming from its latest.pt), to
+    train.epochs or train.max_steps. -> {'step', 'losses' (this call's), 'val' (the last
+    validation metrics or None), 'best' (best validation mIoU)}. A stop request (Ctrl-C, SIGTERM)
+    saves latest.pt and raises KeyboardInterrupt."""
+    from torch.utils.tensorboard import SummaryWriter
+    from tqdm import tqdm
+
+    run = prepare(cfg, out_dir, quiet)
+    resume(run)
+    t = cfg["train"]
+    run.ddp = torch.nn.parallel.DistributedDataParallel(run.model) if run.world > 1 else run.model
+    alpha = class_weights(cfg["loss"]["class_weights"]).to(run.device)
+    if run.main:
+        run.writer = SummaryWriter(str(run.dir.tb))
+    run.stop = GracefulStop(run.world)
+    max_steps = t["max_steps"] or None
+    total = min(max_steps or 10**12, len(run.train_ds) // t["batch_size"] * t["epochs"])
+    bar = tqdm(total=total, initial=run.step, disable=not run.main or quiet, desc="train", dynamic_ncols=True)
+    done = max_steps is not None and run.step >= max_steps
+    while run.epoch < t["epochs"] and not done:
+        done = train_one_epoch(run, bar, alpha, max_steps)
+        if run.stop.requested:
+            if run.main:
+                save_checkpoint(run.latest, checkpoint_state(run))
+            raise KeyboardInterrupt
+        if not done:
+            run.epoch, run.step_in_epoch = run.epoch + 1, 0
+            if not t["val_every"]:
+                validate(run)
+        if run.main:
+            save_checkpoint(run.latest, checkpoint_state(run))
+    bar.close()
+    if run.writer is not None:
+        run.writer.close()
+    if run.world > 1:
+        dist.barrier()
+        dist.destroy_process_group()
+    return {"step": run.step, "losses": run.history, "val": run.last_val, "best": run.best}
+
+
+def train_with_budget(cfg: dict, out_dir: Path, budget_s: float | None = None, steps: int | None = None, quiet: bool = False) -> dict:
+    """Train to `steps`, or for `budget_s` seconds of training in chunks (`train` resumes exactly
+    between them); the training time so far is kept in budget.json, so a killed run resumes with
+    the time it had left. -> {'seconds': training time so far, 'step': steps done}."""
+    state_path = RunDir(out_dir).budget
+    state = read_json(state_path) if state_path.is_file() else {"seconds": 0.0, "step": 0}
+    if steps is not None:
+        t0 = time.perf_counter()
+        res = train(deep_merge(cfg, {"train": {"max_steps": steps}}), out_dir, quiet=quiet)
+        state = {"seconds": state["seconds"] + time.perf_counter() - t0, "step": res["step"]}
+        write_json_atomic(state_path, state)
+        return state
+    chunk = 1  # first chunk: time one step (and the run's set-up)
+    while state["seconds"] < budget_s:
+        target = state["step"] + chunk
+        t0 = time.perf_counter()
+        res = train(deep_merge(cfg, {"train": {"max_steps": target, "checkpoint_every": max(1, chunk)}}), out_dir, quiet=True)
+        spent = time.perf_counter() - t0
+        state = {"seconds": state["seconds"] + spent, "step": res["step"]}
+        write_json_atomic(state_path, state)
+        per_step = spent / max(chunk, 1)
+        left = budget_s - state["seconds"]
+        chunk = max(1, min(int(left / per_step / 2) if left > 4 * per_step else int(math.ceil(left / per_step)), 10**6))
+        if not quiet:
+            print(f"  {out_dir}: step {state['step']}, {state['seconds']:.0f}/{budget_s:.0f} s", flush=True)
+    return state
