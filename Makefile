@@ -24,7 +24,7 @@ $(VENV)/.done: requirements.txt pyproject.toml Makefile
 	$(PYTHON) -m pip install -q -r requirements.txt
 	@# the project itself, editable (console commands fisheye-bev-dataset/-train/-eval); offline: the build
 	@# uses the venv's setuptools, the dependencies are the lines above
-	$(PYTHON) -m pip install -q setuptools
+	$(PYTHON) -m pip install -q "setuptools>=64"
 	$(PYTHON) -m pip install -q --no-build-isolation --no-deps -e .
 	$(PYTHON) -c "import bpy, torch, OpenEXR, kornia, cv2, ray; print('setup ok: bpy', bpy.app.version_string, 'torch', torch.__version__)"
 	@touch $@

@@ -89,8 +89,7 @@ def build_dataset(config, out, backend: str = "local", workers: int | None = Non
         code = stages[stage]()
         if stage == "audit" and code == EXIT_PROBLEMS:  # labels above the audit's threshold: reported, not fatal
             result = code
-        elif code:
-            print(f"dataset: stopped at {stage} (exit {code}); fix the above and run again to resume", file=sys.stderr)
+        elif code:  # the stage said why; run again to resume
             return code
     return result
 

@@ -28,7 +28,7 @@ LABELS = ("semantic", "instance", "distance")
 
 
 def _generate(config, out, *extra, check=True):
-    cmd = [sys.executable, "-m", "dataset_tools.generate", "--config", str(config), "--out", str(out),
+    cmd = [sys.executable, "-m", "dataset_tools", "generate", "--config", str(config), "--out", str(out),
            "--no-progress", *extra]
     r = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=600)
     if check:
@@ -280,7 +280,7 @@ def test_killed_run_resumes_to_the_same_files(scene_tiny_run, tmp_path):
     path = tmp_path / "cfg.yaml"
     path.write_text(yaml.safe_dump(cfg))
     out = tmp_path / "out"
-    cmd = [sys.executable, "-m", "dataset_tools.generate", "--config", str(path), "--out", str(out),
+    cmd = [sys.executable, "-m", "dataset_tools", "generate", "--config", str(path), "--out", str(out),
            "--no-progress", "--workers", "1"]
     proc = subprocess.Popen(cmd, cwd=ROOT, start_new_session=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     manifest = out / "manifest.jsonl"
