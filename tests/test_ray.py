@@ -145,7 +145,7 @@ def test_merge_of_two_shards_equals_one_run(merged, tiny_rendered, tiny_dataset)
         assert (merged / f.relative_to(tiny_dataset)).read_bytes() == f.read_bytes(), f
     assert Manifest(merged).entries() == Manifest(tiny_rendered).entries()
     for e in Manifest(merged).entries():
-        _same_frame(merged / e["dir"], tiny_rendered / e["dir"])
+        _same_frame(merged / e["dir"], tiny_dataset / e["dir"])
     for sheet in merged.glob("*/contact_sheet.png"):
         assert np.array_equal(cv2.imread(str(sheet)), cv2.imread(str(tiny_rendered / sheet.relative_to(merged))))
     index = json.loads((merged / "index.json").read_text())
@@ -184,3 +184,15 @@ def test_the_local_pool_needs_no_ray():
             "dataset_tools.merge, common.backend; "
             "assert not [m for m in sys.modules if m == 'ray' or m.startswith('ray.')]")
     subprocess.run([sys.executable, "-c", code], cwd=ROOT, check=True)
+
+
+def test_local_backend_maps_in_processes_as_in_this_one():
+    """common.backend's local pool: fn(job, shared) in spawned processes, results in job order."""
+    import operator
+
+    from common.backend import make_backend
+
+    jobs = list(range(9))
+    inline = list(make_backend("local", workers=1).map(operator.pow, jobs, shared=2))
+    assert inline == [j ** 2 for j in jobs]
+    assert list(make_backend("local", workers=2).map(operator.pow, jobs, shared=2)) == inline

@@ -18,6 +18,7 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 from common.backend import WorkerLost, make_backend
+from common.cli import EXIT_PROBLEMS
 from common.errors import ConfigError
 from common.files import clean_stale_temps, write_text_atomic
 from common.worker_protocol import RenderTask, read_message
@@ -219,7 +220,7 @@ def run(cfg: dict, out: Path, shard=(0, 1), workers: int | None = None, progress
                     log.write(e.trace + "\n")
                 e = f"{e.message} (trace in {out / 'worker_errors.log'})"
             print(f"generate: {e}", file=sys.stderr)
-        return 1
+        return EXIT_PROBLEMS
     from ..qa.contact_sheet import make_sheets
 
     make_sheets(out)
