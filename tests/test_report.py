@@ -1,4 +1,4 @@
-"""The static HTML QA report (dataset_tools.report): built for the tiny data set, regenerated
+"""The static HTML QA report (dataset_tools.qa.report): built for the tiny data set, regenerated
 incrementally, and loaded in headless Chromium (Debian's chromium + chromium-driver, installed by
 `make browser` when missing)."""
 

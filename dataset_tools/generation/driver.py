@@ -1,4 +1,4 @@
-"""The render driver behind `python -m dataset_tools.generate`.
+"""The render driver behind `python -m dataset_tools generate`.
 
 Plans every (scene, frame) of the config, keeps this shard's share (`--shard i/N`: job k is in
 shard k mod N, so shards can run anywhere), skips frames already in the manifest, and hands the

@@ -288,7 +288,7 @@ def timing_figure(infos: list[dict], path: Path) -> None:
 
 
 def read_audit(root: Path) -> dict | None:
-    """<DATA>/audit.json (dataset_tools.audit) or None when there is none yet."""
+    """<DATA>/audit.json (dataset_tools.qa.audit) or None when there is none yet."""
     path = root / AUDIT
     if not path.is_file():
         return None
