@@ -1,14 +1,14 @@
 """Where parallel work runs: this machine's processes or a Ray cluster. The one place that picks
 between them (`--backend local|ray`), for rendering and fusion alike.
 
-    backend = make_backend("local", workers=4)         # or "ray", address=..., threads=...
-    for result in backend.map(fuse_one, frame_dirs, shared=cfg): ...   # fn(job, shared), as they finish
-    worker = backend.start(WorkerProcess, cpus=threads)  # a long-lived worker: .run(job) yields, .close()
-    backend.slots(cpus=threads)                         # how many such workers fit
+    backend = make_backend("local", workers=4)           # or make_backend("ray", address=...)
+    for result in backend.map(fuse_one, frame_dirs, shared=cfg): ...   # fn(job, shared) per job
+    backend.slots(cpus=threads)                           # how many long-lived workers fit
+    worker = backend.start(WorkerProcess, cpus=threads)   # one of them: .run(job) yields, .close()
 
 `map` runs stateless jobs: locally in `workers` spawned processes (in this process when
-workers <= 1), on Ray as tasks in batches (a batch lost with its node is run again: jobs must be
-idempotent). `start` makes one stateful worker: locally the object itself, on Ray an actor owning
+workers <= 1), results in job order; on Ray as tasks in batches, results as batches finish (a
+batch lost with its node is run again: jobs must be idempotent). `start` makes one stateful worker: locally the object itself, on Ray an actor owning
 it whose `run` streams back what it yields; an actor that dies raises WorkerLost, an exception
 the worker raises arrives as itself. Ray is imported only by the Ray backend.
 """
