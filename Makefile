@@ -14,7 +14,7 @@ BROWSER_PKGS := chromium chromium-driver
 
 setup: $(VENV)/.done
 
-$(VENV)/.done: requirements.txt Makefile
+$(VENV)/.done: requirements.txt pyproject.toml Makefile
 	@missing=""; for p in $(APT_LIBS); do dpkg -s $$p >/dev/null 2>&1 || missing="$$missing $$p"; done; \
 	if [ -n "$$missing" ]; then \
 	  echo "installing shared libraries for bpy:$$missing"; \
@@ -22,6 +22,10 @@ $(VENV)/.done: requirements.txt Makefile
 	fi
 	@test -x $(PYTHON) || $(PY) -m venv $(VENV)
 	$(PYTHON) -m pip install -q -r requirements.txt
+	@# the project itself, editable (console commands fisheye-bev-dataset/-train/-eval); offline: the build
+	@# uses the venv's setuptools, the dependencies are the lines above
+	$(PYTHON) -m pip install -q "setuptools>=64"
+	$(PYTHON) -m pip install -q --no-build-isolation --no-deps -e .
 	$(PYTHON) -c "import bpy, torch, OpenEXR, kornia, cv2, ray; print('setup ok: bpy', bpy.app.version_string, 'torch', torch.__version__)"
 	@touch $@
 
@@ -48,9 +52,7 @@ bench: setup
 	$(PYTHON) -m bench.run
 
 dataset: setup
-	$(PYTHON) -m dataset_tools.generate --config configs/dataset/$(PRESET).yaml --out $(DATA) --backend $(BACKEND) $(if $(WORKERS),--workers $(WORKERS))
-	$(PYTHON) -m dataset_tools.fuse $(DATA) --config configs/dataset/$(PRESET).yaml --backend $(BACKEND) $(if $(WORKERS),--workers $(WORKERS))
-	$(PYTHON) -m dataset_tools.report $(DATA)
+	$(PYTHON) -m dataset_tools dataset --config configs/dataset/$(PRESET).yaml --out $(DATA) --backend $(BACKEND) $(if $(WORKERS),--workers $(WORKERS))
 
 train: setup
 	$(PYTHON) train.py --config $(CONFIG) --out $(RUN)

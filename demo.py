@@ -1,7 +1,7 @@
 """`make demo`: the whole chain on a small default, each step with its own progress bar.
 
-    generate a small data set (configs/dataset/demo.yaml)  ->  data/demo
-    fuse its BEV labels                                     ->  data/demo/<scene>/<frame>/labels
+    build a small data set (configs/dataset/demo.yaml)     ->  data/demo
+      (python -m dataset_tools dataset: render, fuse its BEV labels, audit, QA report)
     train briefly (configs/train/demo.yaml)                 ->  runs/demo
     evaluate on every split                                 ->  runs/demo/eval
 
@@ -10,11 +10,11 @@ Every step resumes: run it again after an interruption and finished work is skip
 
 from __future__ import annotations
 
-import argparse
 import subprocess
 import sys
 import time
 
+from common.cli import ArgumentParser, run_cli
 from model.run_dir import RunDir
 
 
@@ -29,7 +29,7 @@ def step(title: str, cmd: list[str]) -> None:
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p = ArgumentParser(prog="demo.py", description=__doc__.splitlines()[0])
     p.add_argument("--data", default="data/demo")
     p.add_argument("--run", default="runs/demo")
     p.add_argument("--dataset-config", default="configs/dataset/demo.yaml")
@@ -37,14 +37,14 @@ def main(argv=None) -> int:
     a = p.parse_args(argv)
     py = sys.executable
     t0 = time.time()
-    step("1/4 render the scenes in Blender", [py, "-m", "dataset_tools.generate", "--config", a.dataset_config, "--out", a.data])
-    step("2/4 fuse occlusion-corrected BEV labels", [py, "-m", "dataset_tools.fuse", a.data, "--config", a.dataset_config])
-    step("3/4 train the LSS-fisheye model", [py, "train.py", "--config", a.train_config, "--out", a.run, "--set", f"data.root={a.data}"])
+    step("1/3 build the data set: render in Blender, fuse occlusion-corrected BEV labels, audit, report",
+         [py, "-m", "dataset_tools", "dataset", "--config", a.dataset_config, "--out", a.data])
+    step("2/3 train the LSS-fisheye model", [py, "train.py", "--config", a.train_config, "--out", a.run, "--set", f"data.root={a.data}"])
     run = RunDir(a.run)
     ckpt, out = run.latest, run.eval
-    step("4/4 evaluate on every split", [py, "eval.py", "--checkpoint", str(ckpt), "--split", "all", "--out", str(out)])
+    step("3/3 evaluate on every split", [py, "eval.py", "--checkpoint", str(ckpt), "--split", "all", "--out", str(out)])
     print(f"\ndemo finished in {(time.time() - t0) / 60:.1f} min")
-    print(f"  data set and contact sheets: {a.data}/  (label QA: python -m dataset_tools.inspect {a.data}/<scene>/<frame>)")
+    print(f"  data set and contact sheets: {a.data}/  (label QA report: {a.data}/report/index.html)")
     print(f"  checkpoint:                  {ckpt}  (TensorBoard: tensorboard --logdir {run.tb})")
     print(f"  tables:                      {out.table}, {out.metrics}")
     print(f"  pictures:                    {out}/{out.FRAME_GLOB}, {out}/{out.CONFUSION_GLOB}")
@@ -52,4 +52,4 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    run_cli(main, prog="demo.py")

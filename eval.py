@@ -47,5 +47,10 @@ def main(argv=None) -> int:
     return 0
 
 
-if __name__ == "__main__":
+def cli() -> None:
+    """The console entry point (fisheye-bev-eval, pyproject.toml)."""
     run_cli(main)
+
+
+if __name__ == "__main__":
+    cli()

@@ -1,7 +1,7 @@
 """Label fusion throughput on one core: a constructed 480x302 four-fisheye frame (default rig, a
 400x400 label grid, plane + vehicles + a wall + a canopy), fused from passes in memory and from the
 files on disk (EXR reads and label PNG writes included), and the line-of-sight audit of the fused
-frame (dataset_tools.audit). Ray tables are built once, outside the timing, as in a fusion run."""
+frame (dataset_tools.qa.audit). Ray tables are built once, outside the timing, as in a fusion run."""
 
 from __future__ import annotations
 

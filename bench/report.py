@@ -1,4 +1,4 @@
-"""Bench: the HTML QA report (dataset_tools.report) at the `small` preset's sizes (480x302 fisheye,
+"""Bench: the HTML QA report (dataset_tools.qa.report) at the `small` preset's sizes (480x302 fisheye,
 400x400 label grid). Renders and fuses a few frames of one small-preset scene, builds the report
 from nothing, then again with nothing to redo, and scales the per-frame time and size to a
 200-frame data set (the whole small preset; goal: under ~100 MB).

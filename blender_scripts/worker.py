@@ -1,8 +1,8 @@
 """A rendering worker: `python -m blender_scripts.worker`, driven by dataset_tools.generate.
 
-Reads tasks as JSON lines on stdin; builds a task's scene once (kept while the next task is the
-same scene) and renders its frames with persistent data. Protocol lines on stdout start with
-MARK (Blender prints its own progress there too); the driver writes the manifest.
+Reads render tasks on stdin; builds a task's scene once (kept while the next task is the same
+scene) and renders its frames with persistent data. The protocol (task lines, message lines) is
+common.worker_protocol; the driver writes the manifest.
 """
 
 from __future__ import annotations
@@ -14,11 +14,11 @@ import time
 import traceback
 from pathlib import Path
 
-MARK = "@@bev "
+from common.worker_protocol import RenderTask, message_line
 
 
 def say(**msg) -> None:
-    sys.stdout.write(MARK + json.dumps(msg) + "\n")
+    sys.stdout.write(message_line(**msg))
     sys.stdout.flush()
 
 
@@ -28,7 +28,9 @@ def frame_seed(scene_seed: int, frame: int) -> int:
     return int(np.random.default_rng([int(scene_seed), 4, int(frame)]).integers(0, 2**31 - 1))
 
 
-def run_task(task: dict, state: dict) -> None:
+def run_task(task: RenderTask, state: dict) -> None:
+    """Render the task's frames. Its topdown and render sections are complete (the dataset
+    config's schema filled in every default), so no default is restated here."""
     import bpy  # noqa: F401  (first import starts Blender)
 
     from dataset_tools.format.layout import frame_dir_name
@@ -39,14 +41,14 @@ def run_task(task: dict, state: dict) -> None:
     from .build_scene import build_scene, set_frame
     from .render_frame import configure_render, render_frame
 
-    recipe = task["recipe"]
-    key = json.dumps([recipe, task["rig"], task["fisheye_size"], task["topdown"], task["render"]], sort_keys=True)
+    recipe, td, render = task.recipe, task.topdown, task.render
+    key = json.dumps([recipe, task.rig, task.fisheye_size, td, render], sort_keys=True)
     t_build = 0.0
     if state.get("key") != key:
         t0 = time.perf_counter()
-        rig = load_rig(task["rig"])
-        if task["fisheye_size"]:
-            w, h = task["fisheye_size"]
+        rig = load_rig(task.rig)
+        if task.fisheye_size:
+            w, h = task.fisheye_size
             rig = rig.map_cameras(lambda c: c.resized(w, h))
         nominal = rig
         if recipe.get("rig_jitter"):
@@ -55,28 +57,25 @@ def run_task(task: dict, state: dict) -> None:
             from .build_scene import scene_rng
 
             rig = jitter_rig(rig, scene_rng(recipe["seed"], 6), recipe["rig_jitter"])
-        td = task["topdown"]
         grid = BevGrid(-td["bound"], td["bound"], -td["bound"], td["bound"], 2 * td["bound"] / td["size"])
-        built = build_scene(recipe, rig, grid, td["height_m"], state["osl_dir"],
-                            task["render"].get("camera_method", "osl"), task["render"].get("ego_body", True))
-        configure_render(bpy.context.scene, task["render"]["samples"], task["render"]["denoise"],
-                         task["threads"], task["render"]["max_bounces"],
-                         task["render"].get("denoise_quality", "balanced"))
+        built = build_scene(recipe, rig, grid, td["height_m"], state["osl_dir"], render["camera_method"],
+                            render["ego_body"])
+        configure_render(bpy.context.scene, render["samples"], render["denoise"], task.threads,
+                         render["max_bounces"], render["denoise_quality"])
         state.update(key=key, built=built, rig=rig, nominal=nominal, grid=grid)
         t_build = time.perf_counter() - t0
     built, rig = state["built"], state["rig"]
     sizes = {rc.name: (rc.camera.width, rc.camera.height) for rc in rig}
-    for frame in task["frames"]:
+    for frame in task.frames:
         t0 = time.perf_counter()
-        frame_dir = Path(task["out"]) / frame_dir_name(task["scene"], frame)
+        frame_dir = Path(task.out) / frame_dir_name(task.scene, frame)
         fm = set_frame(built, frame)
         seed = frame_seed(recipe["seed"], frame)
-        td = task["topdown"]
-        timings = render_frame(built, frame_dir, sizes, td["size"], task["render"], seed, Path(state["tmp"]), fm,
-                               td.get("supersample", 1), td.get("marking_share", 0.25))
+        timings = render_frame(built, frame_dir, sizes, td["size"], render, seed, Path(state["tmp"]), fm,
+                               td["supersample"], td["marking_share"])
         w = built.weather
         meta = {
-            "scene": task["scene"], "frame": frame, "split": task["split"], "family": recipe["family"],
+            "scene": task.scene, "frame": frame, "split": task.split, "family": recipe["family"],
             "time_s": fm["time_s"],
             "ego_pose": fm["ego_pose"],
             "actors": fm["actors"],
@@ -88,11 +87,11 @@ def run_task(task: dict, state: dict) -> None:
             "rig": rig.to_dict(),  # this frame's calibration (jittered when the recipe asks)
             "rig_nominal": state["nominal"].to_dict(),
             "ego": built.ego_meta,
-            "camera_method": task["render"].get("camera_method", "osl"),
+            "camera_method": render["camera_method"],
             "fit_errors_px": built.fit_errors,
             "topdown": {"grid": state["grid"].to_dict(), "height_m": td["height_m"],
-                        "supersample": td.get("supersample", 1), "marking_share": td.get("marking_share", 0.25)},
-            "render": task["render"],
+                        "supersample": td["supersample"], "marking_share": td["marking_share"]},
+            "render": render,
             "recipe": recipe,
         }
         # frame_s: this frame's posing, renders and writes (meta.json's own write, ~1 ms, excluded)
@@ -100,7 +99,7 @@ def run_task(task: dict, state: dict) -> None:
         t_build = 0.0
         write_meta(frame_dir, FrameMeta(**meta))
         files = sorted(p.name for p in frame_dir.iterdir() if not p.name.startswith("."))
-        say(event="frame", scene=task["scene"], frame=frame, files=files, timings=meta["timings"])
+        say(event="frame", scene=task.scene, frame=frame, files=files, timings=meta["timings"])
 
 
 def main() -> int:
@@ -110,7 +109,7 @@ def main() -> int:
     for line in sys.stdin:
         if not line.strip():
             continue
-        task = json.loads(line)
+        task = RenderTask.from_line(line)
         try:
             run_task(task, state)
         except Exception as exc:  # the driver prints it as one line and stops

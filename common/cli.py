@@ -5,7 +5,9 @@
         run_cli(main)
 
 Bad input (`InputError`) prints one line and exits 2; an environment error (disk full, read-only
-file system, permission, no CUDA) prints one line naming the path and exits 1; Ctrl-C exits 130.
+file system, permission, no CUDA) prints one line naming the path and exits 1; a command that ran
+and found problems (frames it could not fuse, a failed check, parts that do not merge) prints one
+line per problem and returns EXIT_PROBLEMS (1); Ctrl-C exits 130 (docs/errors.md).
 `--debug` anywhere on the command line (or FISHEYE_BEV_DEBUG=1) shows the full traceback instead.
 """
 
@@ -19,6 +21,7 @@ from .errors import InputError, MachineError
 
 EXIT_BAD_INPUT = 2
 EXIT_ENVIRONMENT = 1
+EXIT_PROBLEMS = 1
 EXIT_INTERRUPTED = 130
 
 

@@ -1,44 +1,33 @@
 """Fuse every rendered frame of a data set into BEV labels, then (re)write index.json.
 
-    python -m dataset_tools.fuse <dataset> [--workers N] [--config configs/dataset/small.yaml] [--force]
+    python -m dataset_tools fuse <dataset> [--workers N] [--config configs/dataset/small.yaml] [--force]
                                  [--backend ray [--address ADDR]]
 
 Resumable: a frame whose three label PNGs exist is skipped (each PNG is written atomically, the
-visibility last); `--force` redoes every frame. Per-frame work is `labels.fusion.fuse_frame`.
-`--backend ray` fuses on a Ray cluster, frames as tasks in batches (labels.ray_fuse).
+visibility last); `--force` redoes every frame. Per-frame work is `labels.fusion.fuse_frame`, run
+through common.backend: a local process pool, or Ray tasks in batches (`--backend ray`).
 """
 
 from __future__ import annotations
 
-import os
 import sys
-from concurrent.futures import ProcessPoolExecutor
-from multiprocessing import get_context
 from pathlib import Path
 
-from common.cli import ArgumentParser, run_cli
+from common.backend import add_backend_args, make_backend
+from common.cli import EXIT_PROBLEMS, ArgumentParser, run_cli
 from common.files import clean_stale_temps
 from common.lock import hold_lock
 
 from .format.index import build_index, write_index
 from .format.labels import write_labels
 from .format.layout import DatasetError, FrameFiles, Manifest
-from .generate import add_backend_args
 from .labels.fusion import FusionConfig, fuse_frame
 
-_WORKER_CFG: FusionConfig | None = None
 
-
-def _init_worker(cfg: dict):
-    global _WORKER_CFG
-    os.environ.setdefault("OMP_NUM_THREADS", "1")
-    _WORKER_CFG = FusionConfig(**cfg)
-
-
-def fuse_one(frame_dir: str, cfg: FusionConfig | None = None):
-    """(frame_dir, problem or None): fuse one frame and write its labels."""
+def fuse_one(frame_dir: str, cfg: FusionConfig):
+    """(frame_dir, problem or None): fuse one frame and write its labels (idempotent)."""
     try:
-        write_labels(frame_dir, fuse_frame(frame_dir, cfg or _WORKER_CFG))
+        write_labels(frame_dir, fuse_frame(frame_dir, cfg))
         return frame_dir, None
     except (DatasetError, ValueError) as exc:
         return frame_dir, str(exc)
@@ -60,33 +49,17 @@ def fuse_dataset(root, cfg: FusionConfig, workers: int = 1, force: bool = False,
     todo = frames_to_fuse(root, force)
     problems = []
     with tqdm(total=len(todo), desc="fuse", unit="frame", disable=not progress) as bar:
-        if backend == "ray":
-            from .labels.ray_fuse import fuse_on_ray
-
-            results = fuse_on_ray(todo, cfg, address)
-            pool = None
-        elif workers <= 1:
-            results = (fuse_one(d, cfg) for d in todo)
-            pool = None
-        else:
-            pool = ProcessPoolExecutor(workers, mp_context=get_context("spawn"), initializer=_init_worker,
-                                       initargs=(cfg.to_dict(),))
-            results = pool.map(fuse_one, todo, chunksize=4)
-        try:
-            for _, err in results:
-                if err:
-                    problems.append(err)
-                bar.update(1)
-        finally:
-            if pool is not None:
-                pool.shutdown(cancel_futures=True)
+        for _, err in make_backend(backend, workers, address).map(fuse_one, todo, shared=cfg):
+            if err:
+                problems.append(err)
+            bar.update(1)
     write_index(root, build_index(root, cfg.class_names))
     return problems
 
 
 def main(argv=None) -> int:
-    ap = ArgumentParser(prog="python -m dataset_tools.fuse",
-                                 description="Fuse rendered frames into BEV labels (semantic, instance, visibility).")
+    ap = ArgumentParser(prog="python -m dataset_tools fuse",
+                        description="Fuse rendered frames into BEV labels (semantic, instance, visibility).")
     ap.add_argument("dataset")
     ap.add_argument("--workers", type=int, default=1, help="processes (default 1)")
     ap.add_argument("--config", help="dataset config YAML whose 'labels:' section sets the fusion")
@@ -104,7 +77,7 @@ def main(argv=None) -> int:
                                 backend=args.backend, address=args.address)
     for p in problems:
         print(f"error: {p}", file=sys.stderr)
-    return 1 if problems else 0
+    return EXIT_PROBLEMS if problems else 0
 
 
 if __name__ == "__main__":

@@ -1,14 +1,15 @@
-"""Render a data set: `python -m dataset_tools.generate --config configs/dataset/<preset>.yaml --out DIR`.
+"""Render a data set: `python -m dataset_tools generate --config configs/dataset/<preset>.yaml --out DIR`.
 
 The driver is `generation.driver` (planning, Blender workers, manifest); the config is checked by
 `generation.config`. Bad input: one line, exit 2. Run again after an interruption to resume.
-`--backend ray` renders on a Ray cluster (`generation.ray_pool`, docs/scaling.md).
+`--backend ray` renders on a Ray cluster (common.backend, docs/scaling.md).
 """
 
 from __future__ import annotations
 
 from pathlib import Path
 
+from common.backend import add_backend_args
 from common.cli import ArgumentParser, run_cli
 from common.errors import ConfigError
 from common.files import output_dir
@@ -18,15 +19,8 @@ from .generation.config import load_config
 from .generation.driver import parse_shard, run
 
 
-def add_backend_args(ap: ArgumentParser) -> None:
-    ap.add_argument("--backend", choices=("local", "ray"), default="local",
-                    help="local: a process pool on this machine (default); ray: a Ray cluster")
-    ap.add_argument("--address", default=None,
-                    help="Ray cluster address (default: 'auto' when RAY_ADDRESS is set, else a Ray instance on this machine)")
-
-
 def main(argv=None) -> int:
-    ap = ArgumentParser(prog="python -m dataset_tools.generate", description="Render procedural road scenes through the fisheye rig.")
+    ap = ArgumentParser(prog="python -m dataset_tools generate", description="Render procedural road scenes through the fisheye rig.")
     ap.add_argument("--config", required=True, type=Path, help="configs/dataset/<preset>.yaml")
     ap.add_argument("--out", required=True, type=Path)
     ap.add_argument("--shard", default="0/1", help="i/N: render every N-th job starting at i")

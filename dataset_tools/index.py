@@ -1,4 +1,4 @@
-"""Build `<dataset>/index.json` from the manifest: `python -m dataset_tools.index <dataset>`
+"""Build `<dataset>/index.json` from the manifest: `python -m dataset_tools index <dataset>`
 (the library is `format.index`)."""
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ from .format.index import build_index, write_index
 
 
 def main(argv=None) -> int:
-    ap = ArgumentParser(prog="python -m dataset_tools.index", description="Build <dataset>/index.json from the manifest.")
+    ap = ArgumentParser(prog="python -m dataset_tools index", description="Build <dataset>/index.json from the manifest.")
     ap.add_argument("dataset")
     args = ap.parse_args(argv)
     index = build_index(args.dataset)

@@ -1,37 +1,32 @@
-"""Merge parts of a data set rendered apart into one: `python -m dataset_tools.merge OUT PART...`.
+"""Merge parts of a data set rendered apart into one, then fuse, audit and report it:
+`python -m dataset_tools merge OUT PART... [--config CFG]`.
 
 For clusters without a shared file system (`generate --out` per node) and Slurm job arrays
 (`generate --shard i/N` per array task). `--config` also checks that no frame of the config is
-missing. Library: dataset_tools.format.merge. Problems: one line each, exit 2, nothing written.
+missing and sets the fusion. Library: dataset_tools.format.merge; the stages after it:
+dataset_tools.pipeline. Problems: one line each, exit 1 (EXIT_PROBLEMS), nothing written.
 """
 
 from __future__ import annotations
 
-import argparse
-import sys
 from pathlib import Path
 
-from common.cli import run_cli
+from common.backend import add_backend_args
+from common.cli import ArgumentParser, run_cli
 
-from .format.merge import merge
-from .generation.config import load_config
-from .generation.driver import plan
+from .pipeline import build_dataset
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m dataset_tools.merge", description=__doc__.splitlines()[0])
+    ap = ArgumentParser(prog="python -m dataset_tools merge", description=__doc__.splitlines()[0])
     ap.add_argument("out", type=Path, help="the merged data set (may be one of the parts)")
     ap.add_argument("parts", nargs="+", type=Path, help="generate --out folders")
     ap.add_argument("--config", type=Path, help="the dataset config the parts were rendered from: every frame must be there")
+    ap.add_argument("--workers", type=int, default=None, help="fusion processes (default 1)")
+    add_backend_args(ap)
     ap.add_argument("--no-progress", action="store_true")
     a = ap.parse_args(argv)
-    expected = None
-    if a.config:
-        expected = {(s["name"], f) for s, f in plan(load_config(a.config), (0, 1))}
-    problems = merge(a.out, a.parts, expected, progress=not a.no_progress)
-    for p in problems:
-        print(f"merge: {p}", file=sys.stderr)
-    return 2 if problems else 0
+    return build_dataset(a.config, a.out, a.backend, a.workers, a.address, parts=a.parts, progress=not a.no_progress)
 
 
 if __name__ == "__main__":

@@ -16,5 +16,5 @@ I=$SLURM_ARRAY_TASK_ID
 N=$SLURM_ARRAY_TASK_COUNT
 cd "$SLURM_SUBMIT_DIR"
 # A rerun of a failed array task resumes from its folder's manifest.
-.venv/bin/python -m dataset_tools.generate --config "configs/dataset/$PRESET.yaml" --out "$PARTS/$I" \
+.venv/bin/python -m dataset_tools generate --config "configs/dataset/$PRESET.yaml" --out "$PARTS/$I" \
     --shard "$I/$N" --workers "$SLURM_CPUS_PER_TASK" --no-progress

@@ -20,7 +20,7 @@ def _run(*args):
 def tiny_rendered(tmp_path_factory):
     """The `tiny` preset rendered by real Blender once per test session (read-only: copy to change)."""
     out = tmp_path_factory.mktemp("tiny_rendered") / "ds"
-    _run("dataset_tools.generate", "--config", "configs/dataset/tiny.yaml", "--out", str(out), "--no-progress")
+    _run("dataset_tools", "generate", "--config", "configs/dataset/tiny.yaml", "--out", str(out), "--no-progress")
     return out
 
 
@@ -29,5 +29,5 @@ def tiny_dataset(tiny_rendered, tmp_path_factory):
     """The tiny render with fused labels and index.json (read-only: copy to change)."""
     out = tmp_path_factory.mktemp("tiny_dataset") / "ds"
     shutil.copytree(tiny_rendered, out)
-    _run("dataset_tools.fuse", str(out), "--config", "configs/dataset/tiny.yaml")
+    _run("dataset_tools", "fuse", str(out), "--config", "configs/dataset/tiny.yaml")
     return out

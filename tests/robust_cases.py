@@ -2,7 +2,7 @@
 
 A case is (id, command, build, code, needles): `build(ctx)` writes the bad input into the case's
 own folder and returns the command's argv; the command must exit with `code` (2 bad input, 1
-environment), print exactly one line on stderr with no traceback, name every needle in it (the file
+environment or problems found), print exactly one line on stderr with no traceback, name every needle in it (the file
 and the field) and write nothing outside its output folder. `ctx` (tests/test_robustness.py Ctx)
 gives a scratch folder, a copy of a two-frame fused data set and a tiny trained checkpoint.
 """
@@ -24,7 +24,7 @@ NON_UTF8 = b"name: caf\xe9\nscenes: []\n"
 @dataclass
 class Case:
     id: str
-    command: str  # generate fuse index validate inspect consistency stats contact_sheet train eval
+    command: str  # a `python -m dataset_tools` command (dataset_tools/__main__.py), train or eval
     build: Callable
     code: int = 2
     needles: tuple = ()
@@ -266,6 +266,16 @@ add("fuse-config-labels-bad", "fuse", lambda ctx: [str(ctx.ds()), "--config", st
 add("fuse-config-labels-list", "fuse", lambda ctx: [str(ctx.ds()), "--config", str(ctx.write("cfg/l.yaml", "labels: [1]\n"))],
     needles=("l.yaml", "labels"))
 add("fuse-meta-list", "fuse", on_ds("--force", "--no-progress", edit=meta(b"[]")), needles=("meta.json", "JSON object"))
+add("merge-option-unknown", "merge", lambda ctx: [str(ctx.out), str(ctx.ds()), "--bogus"], needles=("--bogus",))
+add("merge-part-missing", "merge", lambda ctx: [str(ctx.out), str(ctx.ws / "none")], needles=("none", "not a directory"))
+add("merge-part-not-generated", "merge", lambda ctx: [str(ctx.out), str(ctx.write("part/x.txt", "x").parent), "--no-progress"],
+    code=1, needles=("part", "manifest.jsonl"))
+add("audit-metric-unknown", "audit", on_ds("--metric", "bogus"), needles=("--metric", "bogus"))
+add("report-frames-text", "report", on_ds("--frames-per-scene", "many"), needles=("--frames-per-scene",))
+add("dataset-workers-text", "dataset", lambda ctx: ["--config", str(ctx.dataset_config()), "--out", str(ctx.out), "--workers", "many"],
+    needles=("--workers",))
+add("dataset-config-missing", "dataset", lambda ctx: ["--config", str(ctx.ws / "none.yaml"), "--out", str(ctx.out)],
+    needles=("none.yaml", "missing"))
 add("fuse-camera-exr-garbage", "fuse", on_ds("--force", "--no-progress", edit=exr_garbage("cam_front.exr")), code=1,
     needles=("cam_front.exr", "EXR"))
 

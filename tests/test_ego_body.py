@@ -36,7 +36,7 @@ def _config(path: Path, scenes) -> Path:
 
 
 def _generate(config, out, *extra):
-    r = subprocess.run([sys.executable, "-m", "dataset_tools.generate", "--config", str(config), "--out", str(out),
+    r = subprocess.run([sys.executable, "-m", "dataset_tools", "generate", "--config", str(config), "--out", str(out),
                         "--no-progress", "--workers", "1", *extra], cwd=ROOT, capture_output=True, text=True, timeout=600)
     assert r.returncode == 0, r.stderr[-2000:]
 
@@ -47,7 +47,7 @@ def sampled(tmp_path_factory):
     cfg = _config(tmp / "cfg.yaml", [{"sample": {"count": 1, "seed": 5, "frames": 1, "rig_jitter": 1.0,
                                                  "families": ["urban_block"]}, "split": "train"}])
     _generate(cfg, tmp / "ds")
-    r = subprocess.run([sys.executable, "-m", "dataset_tools.fuse", str(tmp / "ds"), "--config", str(cfg)],
+    r = subprocess.run([sys.executable, "-m", "dataset_tools", "fuse", str(tmp / "ds"), "--config", str(cfg)],
                        cwd=ROOT, capture_output=True, text=True, timeout=600)
     assert r.returncode == 0, r.stderr[-2000:]
     return tmp / "ds"

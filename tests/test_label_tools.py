@@ -59,7 +59,7 @@ def test_consistency_catches_wrong_labels(tiny, tmp_path):
 
 
 def test_validate_passes_on_the_render_and_names_corrupted_files(tiny, tmp_path):
-    r = run("dataset_tools.validate", str(tiny))
+    r = run("dataset_tools", "validate", str(tiny))
     assert r.returncode == 0, r.stdout + r.stderr
     ds = copy(tiny, tmp_path)
     frames = DatasetIndex(ds).all_frames()
@@ -67,7 +67,7 @@ def test_validate_passes_on_the_render_and_names_corrupted_files(tiny, tmp_path)
     exr.write_bytes(exr.read_bytes()[: exr.stat().st_size // 2])
     label = frames[1].dir / "labels" / "visibility.png"
     label.unlink()
-    r = run("dataset_tools.validate", str(ds))
+    r = run("dataset_tools", "validate", str(ds))
     assert r.returncode == 1
     assert f"{exr}: not a readable EXR" in r.stdout
     assert f"{label}: missing" in r.stdout
@@ -81,7 +81,7 @@ def test_fuse_resumes_and_refuses_bad_frames_cleanly(tiny, tmp_path):
     before = {p: (p.stat().st_mtime_ns, p.read_bytes()) for p in ds.glob("*/*/labels/*.png")}
     redo = frames[0].dir / "labels"
     shutil.rmtree(redo)
-    r = run("dataset_tools.fuse", str(ds))
+    r = run("dataset_tools", "fuse", str(ds))
     assert r.returncode == 0, r.stderr
     for p, (mtime, data) in before.items():
         assert p.read_bytes() == data  # the redone frame is identical, deterministic
@@ -90,7 +90,7 @@ def test_fuse_resumes_and_refuses_bad_frames_cleanly(tiny, tmp_path):
     bad = frames[1].dir
     shutil.rmtree(bad / "labels")
     (bad / "topdown.exr").write_bytes((bad / "topdown.exr").read_bytes()[:500])
-    r = run("dataset_tools.fuse", str(ds))
+    r = run("dataset_tools", "fuse", str(ds))
     assert r.returncode == 1
     assert r.stderr.strip().splitlines()[-1].startswith(f"error: {bad / 'topdown.exr'}: not a readable EXR")
     assert "Traceback" not in r.stderr
@@ -99,7 +99,7 @@ def test_fuse_resumes_and_refuses_bad_frames_cleanly(tiny, tmp_path):
 
 def test_inspect_writes_every_picture(tiny, tmp_path):
     frame = DatasetIndex(tiny).frames("train")[0].dir
-    r = run("dataset_tools.inspect", str(frame), "--out", str(tmp_path / "pics"))
+    r = run("dataset_tools", "inspect", str(frame), "--out", str(tmp_path / "pics"))
     assert r.returncode == 0, r.stderr
     assert "layer all: height, instance, semantic" in r.stdout and "layer ground:" in r.stdout
     names = {p.name for p in (tmp_path / "pics").glob("*.png")}
@@ -107,13 +107,13 @@ def test_inspect_writes_every_picture(tiny, tmp_path):
               "topdown_ground_semantic", "topdown_all_semantic", "labels_semantic", "labels_visibility",
               "labels_over_topdown", "camera_footprints"):
         assert n + ".png" in names
-    r = run("dataset_tools.inspect", str(frame / "cam_left.exr"), "--out", str(tmp_path / "one"))
+    r = run("dataset_tools", "inspect", str(frame / "cam_left.exr"), "--out", str(tmp_path / "one"))
     assert r.returncode == 0 and "distance" in r.stdout
     assert {p.name for p in (tmp_path / "one").glob("*.png")} >= {"semantic.png", "distance.png"}
 
 
 def test_stats_table_and_plots(tiny, tmp_path):
-    r = run("dataset_tools.stats", str(tiny), "--out", str(tmp_path / "st"))
+    r = run("dataset_tools", "stats", str(tiny), "--out", str(tmp_path / "st"))
     assert r.returncode == 0, r.stderr
     st = json.loads((tmp_path / "st" / "stats.json").read_text())
     cls = st["splits"]["train"]["classes"]
@@ -128,10 +128,10 @@ def test_stats_table_and_plots(tiny, tmp_path):
 
 
 def test_bad_dataset_gets_one_line(tmp_path):
-    r = run("dataset_tools.fuse", str(tmp_path / "nothing"))
+    r = run("dataset_tools", "fuse", str(tmp_path / "nothing"))
     assert r.returncode == 2 and r.stderr.strip() == f"error: {tmp_path / 'nothing' / 'manifest.jsonl'}: missing"
     (tmp_path / "cfg.yaml").write_text("labels: {tau: -1}\n")
-    r = run("dataset_tools.fuse", str(tmp_path), "--config", str(tmp_path / "cfg.yaml"))
+    r = run("dataset_tools", "fuse", str(tmp_path), "--config", str(tmp_path / "cfg.yaml"))
     assert r.returncode == 2 and "labels.tau: must be a number > 0" in r.stderr
     assert "Traceback" not in r.stderr
 

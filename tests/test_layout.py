@@ -65,10 +65,10 @@ def test_resume_after_a_torn_manifest_line(tiny_rendered, tmp_path):
     last = json.loads(lines[-1])
     shutil.rmtree(out / last["dir"])
     (out / "manifest.jsonl").write_text("".join(lines[:-1]) + lines[-1][: len(lines[-1]) // 2])
-    r = run("dataset_tools.generate", "--config", "configs/dataset/tiny.yaml", "--out", str(out), "--no-progress", "--workers", "1")
+    r = run("dataset_tools", "generate", "--config", "configs/dataset/tiny.yaml", "--out", str(out), "--no-progress", "--workers", "1")
     assert r.returncode == 0, r.stderr[-2000:]
     assert (out / "manifest.jsonl").read_text().splitlines(keepends=True)[:-1] == lines[:-1]
     assert (FrameFiles(out / last["dir"]).meta).is_file()
     assert [(e["scene"], e["frame"]) for e in Manifest(out).entries()] == sorted((json.loads(x)["scene"], json.loads(x)["frame"]) for x in lines)
-    r = run("dataset_tools.index", str(out))
+    r = run("dataset_tools", "index", str(out))
     assert r.returncode == 0 and "not valid JSON" not in r.stderr, r.stderr

@@ -1,6 +1,7 @@
 """Rendering and fusion on a real two-node Ray cluster (ray.cluster_utils.Cluster on loopback,
 one CPU per node) equal the local pool's output file by file; a Ray worker killed mid-run and a
-killed driver cost nothing but a reschedule; `merge` of two shard folders equals one run."""
+killed driver cost nothing but a reschedule; `merge` of two shard folders equals one run (and goes on
+to fuse, audit and report it, as `python -m dataset_tools dataset` does after rendering)."""
 
 import json
 import os
@@ -42,7 +43,7 @@ def ray_cluster():
 
 
 def _generate(address, out, *extra):
-    return subprocess.Popen([sys.executable, "-m", "dataset_tools.generate", "--config", TINY, "--out", str(out),
+    return subprocess.Popen([sys.executable, "-m", "dataset_tools", "generate", "--config", TINY, "--out", str(out),
                              "--backend", "ray", "--address", address, "--no-progress", *extra],
                             cwd=ROOT, env=dict(os.environ, **LOOPBACK), stderr=subprocess.PIPE, text=True)
 
@@ -126,18 +127,25 @@ def _tree(root):
 @pytest.fixture(scope="module")
 def merged(ray_shards, tmp_path_factory):
     out = tmp_path_factory.mktemp("merged") / "ds"
-    r = subprocess.run([sys.executable, "-m", "dataset_tools.merge", str(out), str(ray_shards["a"]),
+    r = subprocess.run([sys.executable, "-m", "dataset_tools", "merge", str(out), str(ray_shards["a"]),
                         str(ray_shards["b"]), "--config", TINY, "--no-progress"],
                        cwd=ROOT, capture_output=True, text=True)
     assert r.returncode == 0, r.stderr
     return out
 
 
-def test_merge_of_two_shards_equals_one_run(merged, tiny_rendered):
-    assert _tree(merged) == sorted(_tree(tiny_rendered) + ["index.json"])
+LATER_STAGES = ("index.json", "audit.json", "report/")  # and each frame's labels/: fuse, audit, report
+
+
+def test_merge_of_two_shards_equals_one_run(merged, tiny_rendered, tiny_dataset):
+    rendered = [p for p in _tree(merged) if not p.startswith(LATER_STAGES) and "/labels/" not in p]
+    assert rendered == _tree(tiny_rendered)
+    assert (merged / "audit.json").is_file() and (merged / "report" / "index.html").is_file()
+    for f in sorted(tiny_dataset.glob("*/*/labels/*.png")):  # fused after merging, as the local pipeline does
+        assert (merged / f.relative_to(tiny_dataset)).read_bytes() == f.read_bytes(), f
     assert Manifest(merged).entries() == Manifest(tiny_rendered).entries()
     for e in Manifest(merged).entries():
-        _same_frame(merged / e["dir"], tiny_rendered / e["dir"])
+        _same_frame(merged / e["dir"], tiny_dataset / e["dir"])
     for sheet in merged.glob("*/contact_sheet.png"):
         assert np.array_equal(cv2.imread(str(sheet)), cv2.imread(str(tiny_rendered / sheet.relative_to(merged))))
     index = json.loads((merged / "index.json").read_text())
@@ -149,17 +157,17 @@ def test_merge_refuses_duplicates_and_missing_frames(ray_shards, tmp_path):
     cases = [([a, a], "in both"), ([a], "missing from every part")]
     for parts, what in cases:
         out = tmp_path / "out"
-        r = subprocess.run([sys.executable, "-m", "dataset_tools.merge", str(out), *map(str, parts), "--config", TINY],
+        r = subprocess.run([sys.executable, "-m", "dataset_tools", "merge", str(out), *map(str, parts), "--config", TINY],
                            cwd=ROOT, capture_output=True, text=True)
-        assert r.returncode == 2 and what in r.stderr and "Traceback" not in r.stderr, r.stderr
+        assert r.returncode == 1 and what in r.stderr and "Traceback" not in r.stderr, r.stderr  # EXIT_PROBLEMS
         assert not out.exists()  # nothing written
 
 
 def test_fusion_on_ray_equals_the_local_pool(ray_cluster, merged, tiny_dataset, tmp_path):
     out = tmp_path / "ds"
     shutil.copytree(merged, out)
-    r = subprocess.run([sys.executable, "-m", "dataset_tools.fuse", str(out), "--config", TINY, "--backend", "ray",
-                        "--address", ray_cluster, "--no-progress"],
+    r = subprocess.run([sys.executable, "-m", "dataset_tools", "fuse", str(out), "--config", TINY, "--backend", "ray",
+                        "--address", ray_cluster, "--no-progress", "--force"],  # merge fused it locally
                        cwd=ROOT, env=dict(os.environ, **LOOPBACK), capture_output=True, text=True)
     assert r.returncode == 0, r.stderr
     assert json.loads((out / "index.json").read_text()) == json.loads((tiny_dataset / "index.json").read_text())
@@ -172,6 +180,19 @@ def test_fusion_on_ray_equals_the_local_pool(ray_cluster, merged, tiny_dataset, 
 
 
 def test_the_local_pool_needs_no_ray():
-    code = ("import sys, dataset_tools.generate, dataset_tools.fuse, dataset_tools.merge; "
+    code = ("import sys, dataset_tools.__main__, dataset_tools.pipeline, dataset_tools.generate, dataset_tools.fuse, "
+            "dataset_tools.merge, common.backend; "
             "assert not [m for m in sys.modules if m == 'ray' or m.startswith('ray.')]")
     subprocess.run([sys.executable, "-c", code], cwd=ROOT, check=True)
+
+
+def test_local_backend_maps_in_processes_as_in_this_one():
+    """common.backend's local pool: fn(job, shared) in spawned processes, results in job order."""
+    import operator
+
+    from common.backend import make_backend
+
+    jobs = list(range(9))
+    inline = list(make_backend("local", workers=1).map(operator.pow, jobs, shared=2))
+    assert inline == [j ** 2 for j in jobs]
+    assert list(make_backend("local", workers=2).map(operator.pow, jobs, shared=2)) == inline

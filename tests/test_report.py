@@ -1,4 +1,4 @@
-"""The static HTML QA report (dataset_tools.report): built for the tiny data set, regenerated
+"""The static HTML QA report (dataset_tools.qa.report): built for the tiny data set, regenerated
 incrementally, and loaded in headless Chromium (Debian's chromium + chromium-driver, installed by
 `make browser` when missing)."""
 
@@ -49,7 +49,7 @@ def report(tiny_dataset, tmp_path_factory):
         if name != frames[1]:
             for p in (data / name).glob("cam_*_ego.png"):
                 p.unlink()
-    r = subprocess.run([sys.executable, "-m", "dataset_tools.report", str(data), "--no-progress"], cwd=ROOT,
+    r = subprocess.run([sys.executable, "-m", "dataset_tools", "report", str(data), "--no-progress"], cwd=ROOT,
                        capture_output=True, text=True, timeout=600)
     assert r.returncode == 0, r.stderr[-2000:]
     return data, data / REPORT_DIR, frames
@@ -103,18 +103,18 @@ def test_report_incremental(report, tmp_path):
 
 
 def test_report_no_audit_and_bad_input(tiny_dataset, tmp_path):
-    r = subprocess.run([sys.executable, "-m", "dataset_tools.report", str(tmp_path / "nothing")], cwd=ROOT,
+    r = subprocess.run([sys.executable, "-m", "dataset_tools", "report", str(tmp_path / "nothing")], cwd=ROOT,
                        capture_output=True, text=True, timeout=120)
     assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1 and "Traceback" not in r.stderr
     data = tmp_path / "ds"
     shutil.copytree(tiny_dataset, data)
     (data / AUDIT).write_text("[1, 2")
-    r = subprocess.run([sys.executable, "-m", "dataset_tools.report", str(data), "--frames-per-scene", "1"], cwd=ROOT,
+    r = subprocess.run([sys.executable, "-m", "dataset_tools", "report", str(data), "--frames-per-scene", "1"], cwd=ROOT,
                        capture_output=True, text=True, timeout=300)
     assert r.returncode == 2 and AUDIT in r.stderr and "Traceback" not in r.stderr
     (data / AUDIT).unlink()
     build_report(data, frames_per_scene=1, progress=False)
-    assert "no audit yet (python -m dataset_tools.audit DATA)" in (data / REPORT_DIR / "index.html").read_text()
+    assert "no audit yet (python -m dataset_tools audit DATA)" in (data / REPORT_DIR / "index.html").read_text()
 
 
 # ---------------------------------------------------------------- in the browser

@@ -21,14 +21,11 @@ from pathlib import Path
 import pytest
 import yaml
 
+from dataset_tools.__main__ import COMMANDS as DATASET_COMMANDS
 from robust_cases import CASES
 
 ROOT = Path(__file__).resolve().parents[1]
-COMMANDS = {
-    "generate": "dataset_tools.generate", "fuse": "dataset_tools.fuse", "index": "dataset_tools.index",
-    "validate": "dataset_tools.qa.validate", "inspect": "dataset_tools.qa.inspect", "consistency": "dataset_tools.qa.consistency",
-    "stats": "dataset_tools.qa.stats", "contact_sheet": "dataset_tools.qa.contact_sheet", "train": "train", "eval": "eval",
-}
+COMMANDS = {name: module for name, (module, _) in DATASET_COMMANDS.items()} | {"train": "train", "eval": "eval"}
 WRITES_DATASET = {"fuse", "index", "stats", "inspect", "contact_sheet"}  # may write into the data set they are given
 TEMP = re.compile(r"^\..+\.tmp(\.[A-Za-z0-9]+)?$")
 PROGRESS = re.compile(r"\d+%\||\d+/\d+ \[")  # a tqdm bar line
@@ -151,15 +148,19 @@ def snapshot(folder: Path) -> dict:
 
 
 def run_in_process(command: str, argv: list[str]) -> tuple[int, str]:
-    """(exit code, stderr) of `python -m <command> argv` run here through run_cli."""
+    """(exit code, stderr) of the command (`python -m dataset_tools <command>`, train.py, eval.py)
+    run here through run_cli."""
+    return run_in_process_main(importlib.import_module(COMMANDS[command]).main, argv, command)
+
+
+def run_in_process_main(main, argv: list[str], prog: str = "python -m dataset_tools") -> tuple[int, str]:
     from common.cli import run_cli
 
-    main = importlib.import_module(COMMANDS[command]).main
     handlers = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
     err = io.StringIO()
     try:
         with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
-            run_cli(main, argv, prog=command)
+            run_cli(main, argv, prog=prog)
         code = 0
     except SystemExit as exc:
         code = exc.code
@@ -199,6 +200,20 @@ def test_hostile_input(case, tmp_path, mini_dataset, request):
 def test_corpus_covers_every_entry_point():
     assert len(CASES) >= 100
     assert {c.command for c in CASES} == set(COMMANDS)
+
+
+@pytest.mark.parametrize("argv", [["bogus"], ["--bogus"], ["contact-sheet", "somewhere", "--bogus"]])
+def test_dataset_command_table_errors_are_one_line(argv):
+    from dataset_tools.__main__ import main
+
+    code, stderr = run_in_process_main(main, argv)
+    assert code == 2 and len(error_lines(stderr)) == 1 and "Traceback" not in stderr, stderr
+    assert "bogus" in stderr
+
+
+def test_demo_option_error_is_one_line():
+    r = subprocess.run([sys.executable, "demo.py", "--bogus"], cwd=ROOT, capture_output=True, text=True, timeout=60)
+    assert r.returncode == 2 and r.stderr.count("\n") == 1 and "--bogus" in r.stderr, r.stderr
 
 
 # ------------------------------------------------------------------ faults: full disk, read-only, two writers, kills
@@ -340,7 +355,7 @@ def test_kill_9_of_generate_leaves_no_worker_writing(tmp_path, request):
     ctx = Ctx(tmp_path, None, request)
     cfg = ctx.dataset_config(frames=2, scenes=[{"recipe": "scenes/parking_lot.yaml"}])
     out = tmp_path / "out"
-    p = subprocess.Popen([sys.executable, "-m", "dataset_tools.generate", "--config", str(cfg), "--out", str(out), "--workers", "1",
+    p = subprocess.Popen([sys.executable, "-m", "dataset_tools", "generate", "--config", str(cfg), "--out", str(out), "--workers", "1",
                           "--no-progress"], cwd=ROOT, env=dict(os.environ, PYTHONPATH=str(ROOT)), stderr=subprocess.PIPE)
     deadline = time.time() + 120
     while not (out / ".lock").exists() or not children(p.pid):

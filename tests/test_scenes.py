@@ -28,7 +28,7 @@ LABELS = ("semantic", "instance", "distance")
 
 
 def _generate(config, out, *extra, check=True):
-    cmd = [sys.executable, "-m", "dataset_tools.generate", "--config", str(config), "--out", str(out),
+    cmd = [sys.executable, "-m", "dataset_tools", "generate", "--config", str(config), "--out", str(out),
            "--no-progress", *extra]
     r = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=600)
     if check:
@@ -101,6 +101,37 @@ def test_dataset_config_render_fields(tmp_path):
         load_config(path)
     for path in sorted((ROOT / "configs" / "dataset").glob("*.yaml")):
         assert load_config(path)["render"]["denoise_quality"] in ("high", "balanced", "fast")
+
+
+def test_render_task_and_worker_messages_round_trip(tmp_path):
+    """The driver <-> worker boundary (common.worker_protocol): a task built from a checked config
+    survives its line; Blender's own output is not a message; a garbled message is refused."""
+    from common.worker_protocol import MARK, RenderTask, message_line, read_message
+    from dataset_tools.generation.driver import plan, render_tasks
+
+    cfg = load_config(TINY)
+    tasks = render_tasks(cfg, plan(cfg, (0, 1)), tmp_path, workers=1, threads=1)
+    assert len(tasks) == 7 and all(t.frames == [0, 1] for t in tasks)
+    for t in tasks:
+        assert RenderTask.from_line(t.to_line()) == t
+    again = tasks[0].retry([1])
+    assert (again.frames, again.losses, again.scene) == ([1], 1, tasks[0].scene)
+    assert read_message("Fra:1 Mem:12.00M | Rendering 1 / 1 samples\n") is None
+    assert read_message(message_line(event="frame", frame=3)) == {"event": "frame", "frame": 3}
+    with pytest.raises(ValueError):
+        read_message(MARK + "{garbled\n")
+
+
+def test_frames_use_the_schemas_topdown_defaults(scene_tiny_run):
+    """tiny.yaml leaves topdown.supersample and marking_share out: the worker renders with the
+    dataset config schema's defaults (no second default in the worker)."""
+    from dataset_tools.generation.config import SCHEMA
+
+    assert "supersample" not in yaml.safe_load(TINY.read_text())["topdown"]
+    defaults = SCHEMA.fields["topdown"].defaults()
+    for meta in scene_tiny_run.glob("*/*/meta.json"):
+        td = json.loads(meta.read_text())["topdown"]
+        assert (td["supersample"], td["marking_share"]) == (defaults["supersample"], defaults["marking_share"]) == (2, 0.25)
 
 
 def _rect(x, y, yaw, l, w):
@@ -280,7 +311,7 @@ def test_killed_run_resumes_to_the_same_files(scene_tiny_run, tmp_path):
     path = tmp_path / "cfg.yaml"
     path.write_text(yaml.safe_dump(cfg))
     out = tmp_path / "out"
-    cmd = [sys.executable, "-m", "dataset_tools.generate", "--config", str(path), "--out", str(out),
+    cmd = [sys.executable, "-m", "dataset_tools", "generate", "--config", str(path), "--out", str(out),
            "--no-progress", "--workers", "1"]
     proc = subprocess.Popen(cmd, cwd=ROOT, start_new_session=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     manifest = out / "manifest.jsonl"

@@ -26,7 +26,7 @@ def read_audit(root, missing_ok: bool = False) -> dict | None:
     if not path.is_file():
         if missing_ok:
             return None
-        raise DatasetError(f"{path}: missing (run python -m dataset_tools.audit {root})")
+        raise DatasetError(f"{path}: missing (run python -m dataset_tools audit {root})")
     a = read_json(path, DatasetError)
     if not isinstance(a, dict) or not isinstance(a.get("frames", {}), dict):
         raise DatasetError(f"{path}: field 'frames' must be a mapping of '<scene>/<frame>' to figures")
@@ -43,6 +43,6 @@ def read_audit(root, missing_ok: bool = False) -> dict | None:
 
 
 def audit_metric(audit: dict) -> str:
-    """The figure the audit's threshold applies to (`python -m dataset_tools.audit --metric`)."""
+    """The figure the audit's threshold applies to (`python -m dataset_tools audit --metric`)."""
     m = audit.get("metric")
     return m if isinstance(m, str) else DEFAULT_METRIC

@@ -3,7 +3,7 @@ manifest), one writer and one reader (which checks the version and the fields).
 
 The split of each frame comes from its manifest line (the scene recipe decides it: train, easy,
 medium, hard). The rig is the nominal calibration stored in the first frame's meta.json. The
-command is `python -m dataset_tools.index <dataset>`.
+command is `python -m dataset_tools index <dataset>`.
 """
 
 from __future__ import annotations
@@ -58,7 +58,7 @@ def check_index(index, path) -> dict:
         raise DatasetError(f"{path}: must be a JSON object")
     if index.get("version") != INDEX_VERSION:
         raise DatasetError(f"{path}: field 'version' is {index.get('version')!r}, this code reads version {INDEX_VERSION} "
-                           f"(rebuild it: python -m dataset_tools.index {Path(path).parent})")
+                           f"(rebuild it: python -m dataset_tools index {Path(path).parent})")
     for key, kind in (("splits", dict), ("class_names", list), ("grid", dict)):
         if not isinstance(index.get(key), kind):
             raise DatasetError(f"{path}: field '{key}' missing or not a {'mapping' if kind is dict else 'list'}")
@@ -84,5 +84,5 @@ def read_index(root) -> dict:
     """`<root>/index.json`, checked (check_index); DatasetError when missing or bad."""
     path = Path(root) / INDEX
     if not path.is_file():
-        raise DatasetError(f"{path}: missing (python -m dataset_tools.index {root})")
+        raise DatasetError(f"{path}: missing (python -m dataset_tools index {root})")
     return check_index(read_json(path, DatasetError), path)

@@ -1,5 +1,5 @@
 """Merge data set parts rendered apart (`--out` per node, Slurm array tasks with `--shard i/N`)
-into one data set: `python -m dataset_tools.merge OUT PART...`.
+into one data set: `python -m dataset_tools merge OUT PART...`.
 
 Checks first, writes nothing on a problem: every part's manifest reads, no frame is in two parts,
 every file a manifest line lists is there, and (with the dataset config) the parts together hold

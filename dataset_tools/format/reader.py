@@ -37,7 +37,7 @@ class FrameRef:
 
 
 class DatasetIndex:
-    """`<root>/index.json` (written by `python -m dataset_tools.index`): splits -> frames, class
+    """`<root>/index.json` (written by `python -m dataset_tools index`): splits -> frames, class
     names, label grid and rig. Without an index.json it is built in memory from the manifest."""
 
     def __init__(self, root):

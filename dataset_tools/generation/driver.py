@@ -1,4 +1,4 @@
-"""The render driver behind `python -m dataset_tools.generate`.
+"""The render driver behind `python -m dataset_tools generate`.
 
 Plans every (scene, frame) of the config, keeps this shard's share (`--shard i/N`: job k is in
 shard k mod N, so shards can run anywhere), skips frames already in the manifest, and hands the
@@ -9,7 +9,6 @@ last, by this process only, after every file of the frame (all written atomicall
 
 from __future__ import annotations
 
-import json
 import os
 import queue
 import signal
@@ -18,13 +17,14 @@ import sys
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
+from common.backend import WorkerLost, make_backend
+from common.cli import EXIT_PROBLEMS
 from common.errors import ConfigError
 from common.files import clean_stale_temps, write_text_atomic
+from common.worker_protocol import RenderTask, read_message
 
 from ..format.layout import RECIPES_DIR, Manifest, frame_dir_name
 from .config import REPO
-
-MARK = "@@bev "
 
 
 def plan(cfg: dict, shard: tuple[int, int]) -> list[tuple[dict, int]]:
@@ -69,14 +69,10 @@ class WorkerFailed(Exception):
         return self.message
 
 
-class WorkerLost(Exception):
-    """The worker (process, Ray actor or node) went away mid-task: its unfinished frames can be
-    rescheduled."""
-
-
 class WorkerProcess:
-    """One `python -m blender_scripts.worker` process and its stdin/stdout protocol; used by the
-    local pool's threads and, one per actor, by the Ray backend (generation.ray_pool)."""
+    """One `python -m blender_scripts.worker` process and its stdin/stdout protocol
+    (common.worker_protocol); the backend runs it here or, one per actor, on Ray. A lost worker
+    raises common.backend.WorkerLost: its task's unfinished frames can be rescheduled."""
 
     def __init__(self):
         env = dict(os.environ, PYTHONPATH=os.pathsep.join(
@@ -86,27 +82,27 @@ class WorkerProcess:
                                      text=True, bufsize=1,
                                      preexec_fn=_die_with_parent if sys.platform.startswith("linux") else None)
 
-    def run(self, task: dict):
+    def run(self, task: RenderTask):
         """Yield the worker's "frame" messages for `task`; WorkerFailed / WorkerLost otherwise."""
         try:
-            self.proc.stdin.write(json.dumps(task) + "\n")
+            self.proc.stdin.write(task.to_line())
             self.proc.stdin.flush()
         except (BrokenPipeError, OSError):
-            raise WorkerLost(f"{task['scene']}: worker exited unexpectedly") from None
+            raise WorkerLost("worker exited unexpectedly") from None
         for line in self.proc.stdout:
-            if not line.startswith(MARK):
-                continue
             try:
-                msg = json.loads(line[len(MARK):])
-            except json.JSONDecodeError:
-                raise WorkerLost(f"{task['scene']}: garbled worker message {line.strip()[:80]!r}") from None
+                msg = read_message(line)
+            except ValueError:
+                raise WorkerLost(f"garbled worker message {line.strip()[:80]!r}") from None
+            if msg is None:
+                continue
             if msg["event"] == "frame":
                 yield msg
             elif msg["event"] == "task_done":
                 return
             elif msg["event"] == "error":
-                raise WorkerFailed(f"{task['scene']}: {msg['message']}", msg.get("trace", ""))
-        raise WorkerLost(f"{task['scene']}: worker exited unexpectedly")
+                raise WorkerFailed(f"{task.scene}: {msg['message']}", msg.get("trace", ""))
+        raise WorkerLost("worker exited unexpectedly")
 
     def close(self) -> None:
         if self.proc.stdin:
@@ -132,6 +128,14 @@ def _tasks(jobs, workers: int) -> list[tuple[dict, list[int]]]:
     return tasks
 
 
+def render_tasks(cfg: dict, jobs, out: Path, workers: int, threads: int) -> list[RenderTask]:
+    """The tasks for `jobs` ((scene, frame) pairs) of a config checked by load_config."""
+    return [RenderTask(scene=s["name"], split=s["split"], recipe=s["recipe"], frames=frames, out=str(out.resolve()),
+                       rig=cfg["rig"], fisheye_size=cfg["fisheye_size"], topdown=cfg["topdown"], render=cfg["render"],
+                       threads=threads)
+            for s, frames in _tasks(jobs, workers)]
+
+
 MAX_LOSSES = 3  # a task whose worker is lost this many times stops the run (a frame that kills Blender)
 
 
@@ -154,15 +158,14 @@ def _drive(q: queue.Queue, new_worker, on_frame, errors: list, reschedule: bool)
             except WorkerFailed as exc:
                 errors.append(exc)
             except WorkerLost as exc:
-                rest = [f for f in task["frames"] if f not in done]
-                losses = task.get("losses", 0) + 1
-                if not reschedule or losses >= MAX_LOSSES:
-                    errors.append(str(exc))
+                retry = task.retry([f for f in task.frames if f not in done])
+                if not reschedule or retry.losses >= MAX_LOSSES:
+                    errors.append(f"{task.scene}: {exc}")
                     break
-                print(f"generate: {exc}; {len(rest)} frame(s) rescheduled", file=sys.stderr)
-                for f in rest:  # the lost worker's half-written temp files (its frames are nobody else's)
-                    clean_stale_temps(Path(task["out"]) / frame_dir_name(task["scene"], f))
-                q.put(dict(task, frames=rest, losses=losses))
+                print(f"generate: {task.scene}: {exc}; {len(retry.frames)} frame(s) rescheduled", file=sys.stderr)
+                for f in retry.frames:  # the lost worker's half-written temp files (its frames are nobody else's)
+                    clean_stale_temps(Path(task.out) / frame_dir_name(task.scene, f))
+                q.put(retry)
                 worker.close()
                 worker = new_worker()
     finally:
@@ -173,7 +176,7 @@ def run(cfg: dict, out: Path, shard=(0, 1), workers: int | None = None, progress
         backend: str = "local", address: str | None = None, threads: int = 1) -> int:
     """Render this shard's missing frames into `out`. backend "local": `workers` Blender processes
     on this machine (default one per core, the cores shared among them); "ray": one actor per
-    Blender process on the Ray cluster at `address`, `threads` cores each (generation.ray_pool)."""
+    Blender process on the Ray cluster at `address`, `threads` cores each (common.backend)."""
     from tqdm import tqdm
 
     out.mkdir(parents=True, exist_ok=True)
@@ -183,36 +186,29 @@ def run(cfg: dict, out: Path, shard=(0, 1), workers: int | None = None, progress
     manifest.repair()
     done = manifest.done()
     todo = [(s, f) for s, f in plan(cfg, shard) if (s["name"], f) not in done]
-    pool = None
-    if backend == "ray":
-        from .ray_pool import RayPool
-
-        pool = RayPool(address, threads, workers)
-        workers = max(1, min(pool.slots, len(todo) or 1))
-    else:
-        cores = os.cpu_count() or 1
-        workers = max(1, min(workers or cores, len(todo) or 1))
-        threads = max(1, cores // workers)
+    pool = make_backend(backend, workers, address)
+    workers = max(1, min(pool.slots(threads), len(todo) or 1))
+    threads = pool.threads_per_worker(workers, threads)
     q: queue.Queue = queue.Queue()
-    for s, frames in _tasks(todo, workers):
-        q.put({"scene": s["name"], "split": s["split"], "recipe": s["recipe"], "frames": frames,
-               "out": str(out.resolve()), "rig": cfg["rig"], "fisheye_size": cfg["fisheye_size"],
-               "topdown": cfg["topdown"], "render": cfg["render"], "threads": threads})
+    for task in render_tasks(cfg, todo, out, workers, threads):
+        q.put(task)
     bar = tqdm(total=len(todo), desc=f"{cfg['name']} shard {shard[0]}/{shard[1]}", unit="frame",
                disable=not progress)
     errors: list = []
 
     def on_frame(task, msg):
-        manifest.append({"scene": msg["scene"], "frame": msg["frame"], "split": task["split"],
-                         "family": task["recipe"]["family"], "dir": frame_dir_name(msg["scene"], msg["frame"]),
+        manifest.append({"scene": msg["scene"], "frame": msg["frame"], "split": task.split,
+                         "family": task.recipe["family"], "dir": frame_dir_name(msg["scene"], msg["frame"]),
                          "files": msg["files"]})
         bar.update(1)
 
-    new_worker = pool.new_worker if pool else WorkerProcess
+    def new_worker():
+        return pool.start(WorkerProcess, cpus=threads, name="Render")
+
     try:
         if todo:
             with ThreadPoolExecutor(workers) as threads_pool:
-                for f in [threads_pool.submit(_drive, q, new_worker, on_frame, errors, pool is not None)
+                for f in [threads_pool.submit(_drive, q, new_worker, on_frame, errors, pool.retries_lost_workers)
                           for _ in range(workers)]:
                     f.result()
     finally:
@@ -224,7 +220,7 @@ def run(cfg: dict, out: Path, shard=(0, 1), workers: int | None = None, progress
                     log.write(e.trace + "\n")
                 e = f"{e.message} (trace in {out / 'worker_errors.log'})"
             print(f"generate: {e}", file=sys.stderr)
-        return 1
+        return EXIT_PROBLEMS
     from ..qa.contact_sheet import make_sheets
 
     make_sheets(out)

@@ -1,5 +1,5 @@
 """Fuse one rendered frame's passes into occlusion-corrected BEV labels (the library behind
-`python -m dataset_tools.fuse`).
+`python -m dataset_tools fuse`).
 
 Per frame, from the renders of dataset_tools.generate:
   semantic    top-down fine classes with overhead occluders hidden, mapped to the training classes;

@@ -1,6 +1,6 @@
 """Line-of-sight audit of the fused visibility labels.
 
-    python -m dataset_tools.audit <dataset> [--threshold 0.0005] [--metric unexplained] [--many 2.0]
+    python -m dataset_tools audit <dataset> [--threshold 0.0005] [--metric unexplained] [--many 2.0]
                                   [--no-pixels] [--config cfg.yaml] [--json out.json]
 
 Independent of the fisheye passes: from each camera centre (meta.json's rig) a radial sweep over
@@ -29,12 +29,12 @@ unexplained) is above --threshold (default 0.0005 of the visible cells).
 
 from __future__ import annotations
 
-import argparse
 import math
 from pathlib import Path
 
 import numpy as np
 
+from common.cli import ArgumentParser
 from common.errors import InputError
 from common.files import write_json_atomic
 
@@ -256,7 +256,7 @@ def format_report(r: dict) -> str:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m dataset_tools.audit",
+    ap = ArgumentParser(prog="python -m dataset_tools audit",
                                  description="Line-of-sight audit of the visibility labels; writes <dataset>/audit.json.")
     ap.add_argument("dataset")
     ap.add_argument("--threshold", type=float, default=THRESHOLD,

@@ -1,6 +1,6 @@
 """Consistency of the fused labels with what the fisheye cameras saw.
 
-    python -m dataset_tools.consistency <dataset> [--threshold 0.97] [--min-visibility 0.5] [--json out.json]
+    python -m dataset_tools consistency <dataset> [--threshold 0.97] [--min-visibility 0.5] [--json out.json]
 
 Each camera's ground and vehicle pixels are placed in BEV through their distance pass (the same
 lift as the visibility) and their training class is compared with the fused label of the cell they
@@ -114,7 +114,7 @@ def format_report(r: dict) -> str:
 
 
 def main(argv=None) -> int:
-    ap = ArgumentParser(prog="python -m dataset_tools.consistency", description="Camera pixels vs fused BEV labels, per class.")
+    ap = ArgumentParser(prog="python -m dataset_tools consistency", description="Camera pixels vs fused BEV labels, per class.")
     ap.add_argument("dataset")
     ap.add_argument("--threshold", type=float, default=0.97, help="list frames whose street consistency is below")
     ap.add_argument("--min-visibility", type=float, default=0.5)

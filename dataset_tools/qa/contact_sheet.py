@@ -1,7 +1,7 @@
 """Contact sheets: per scene, one PNG with the four fisheye images and the two top-down views
 (first hit, and with overhead occluders hidden) coloured by fine class.
 
-    python -m dataset_tools.contact_sheet <out dir> [--frame N]
+    python -m dataset_tools contact_sheet <out dir> [--frame N]
 
 writes <out>/<scene>/contact_sheet.png for every scene with that frame rendered (default: the
 scene's first finished frame).
@@ -68,7 +68,7 @@ def make_sheets(out_dir: Path, frame: int | None = None) -> list[Path]:
 
 
 def main(argv=None) -> int:
-    ap = ArgumentParser(prog="python -m dataset_tools.contact_sheet", description=__doc__.splitlines()[0])
+    ap = ArgumentParser(prog="python -m dataset_tools contact_sheet", description=__doc__.splitlines()[0])
     ap.add_argument("out", type=Path, help="a generate --out directory")
     ap.add_argument("--frame", type=int, default=None)
     a = ap.parse_args(argv)

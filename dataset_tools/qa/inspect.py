@@ -1,6 +1,6 @@
 """Look at a frame's passes and labels (label QA).
 
-    python -m dataset_tools.inspect <frame dir or .exr> [--out DIR]
+    python -m dataset_tools inspect <frame dir or .exr> [--out DIR]
 
 For an EXR: lists its layers and channels (type, size, range) and writes a PNG of every pass:
 rgb, false-colour semantic and instance, distance, position. For a frame directory: the same for
@@ -215,7 +215,7 @@ def inspect_frame(frame_dir: Path, out: Path, cfg: FusionConfig | None = None) -
 
 
 def main(argv=None) -> int:
-    ap = ArgumentParser(prog="python -m dataset_tools.inspect", description="List an EXR's layers and write pictures of every pass and label.")
+    ap = ArgumentParser(prog="python -m dataset_tools inspect", description="List an EXR's layers and write pictures of every pass and label.")
     ap.add_argument("path", help="a frame directory or one .exr")
     ap.add_argument("--out", help="folder for the pictures")
     args = ap.parse_args(argv)

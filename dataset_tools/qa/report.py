@@ -1,7 +1,7 @@
 """A static HTML QA report of a data set: one overview page and one page per scene, opened from
 the file system (no server, no CDN; HTML, CSS and a little plain JavaScript).
 
-    python -m dataset_tools.report DATA [--out DATA/report] [--frames-per-scene N]
+    python -m dataset_tools report DATA [--out DATA/report] [--frames-per-scene N]
 
 Every picture is drawn by dataset_tools.qa.inspect (cameras and BEV), contact_sheet, stats and
 consistency; this module only shrinks them into thumbnails and writes the pages. Per frame the
@@ -363,7 +363,7 @@ def overview_page(title: str, idx: DatasetIndex, scenes: dict, st: dict, audit: 
     # audit
     if audit is None:
         parts.append("<section id=\"audit\"><h2>Line-of-sight audit</h2><p class=\"missing\">no audit yet "
-                     "(python -m dataset_tools.audit DATA)</p></section>")
+                     "(python -m dataset_tools audit DATA)</p></section>")
     else:
         th = audit.get("threshold")
         arow, figs = [], []
@@ -506,9 +506,9 @@ def report_size(out: Path) -> int:
 
 
 def main(argv=None) -> int:
-    import argparse
+    from common.cli import ArgumentParser
 
-    ap = argparse.ArgumentParser(prog="python -m dataset_tools.report", description=__doc__.splitlines()[0])
+    ap = ArgumentParser(prog="python -m dataset_tools report", description=__doc__.splitlines()[0])
     ap.add_argument("dataset", type=Path)
     ap.add_argument("--out", type=Path, help=f"report folder (default <dataset>/{REPORT_DIR})")
     ap.add_argument("--frames-per-scene", type=int, help="at most this many frames per scene, evenly spread (default all)")

@@ -1,7 +1,7 @@
 """Data set statistics: class frequencies per split, visibility histogram, coverage by distance and
 by camera, as a table and PNG plots.
 
-    python -m dataset_tools.stats <dataset> [--out DIR] [--no-cameras]
+    python -m dataset_tools stats <dataset> [--out DIR] [--no-cameras]
 
 Pictures and stats.json go to DIR (default <dataset>/stats).
 """
@@ -155,7 +155,7 @@ def plot(st: dict, out: Path) -> list[Path]:
 
 
 def main(argv=None) -> int:
-    ap = ArgumentParser(prog="python -m dataset_tools.stats", description="Class frequencies, visibility histogram, coverage by distance and camera.")
+    ap = ArgumentParser(prog="python -m dataset_tools stats", description="Class frequencies, visibility histogram, coverage by distance and camera.")
     ap.add_argument("dataset")
     ap.add_argument("--out", help="folder for stats.json and plots (default <dataset>/stats)")
     ap.add_argument("--no-cameras", action="store_true", help="skip coverage by camera (reads no EXR)")

@@ -1,10 +1,10 @@
 """Check a data set: every frame's files present, readable, right shapes and value ranges, no NaN,
 manifest (and index) consistent.
 
-    python -m dataset_tools.validate <dataset> [--no-labels] [--audit-threshold 0.005]
+    python -m dataset_tools validate <dataset> [--no-labels] [--audit-threshold 0.005]
 
 Prints one line per problem, naming the file and what is wrong, and exits 1 when there are any.
---audit-threshold also reads <dataset>/audit.json (python -m dataset_tools.audit) and fails the data
+--audit-threshold also reads <dataset>/audit.json (python -m dataset_tools audit) and fails the data
 set when its overall share (of the metric the audit ran with, default 'unexplained': visible cells
 with no line of sight and no camera pixel near) is above the threshold.
 """
@@ -140,7 +140,7 @@ def check_audit(root: Path, threshold: float, problems: list) -> None:
         problems.append(str(exc))
         return
     except (AttributeError, KeyError, TypeError, ValueError):
-        problems.append(f"{root / AUDIT}: no overall share to check (rerun python -m dataset_tools.audit {root})")
+        problems.append(f"{root / AUDIT}: no overall share to check (rerun python -m dataset_tools audit {root})")
         return
     if share > threshold:
         problems.append(f"{root / AUDIT}: {metric} {share:.4%} of the visible cells have no line of sight to any "
@@ -170,11 +170,11 @@ def validate(root, labels: bool = True, progress: bool = True, audit_threshold: 
 
 
 def main(argv=None) -> int:
-    ap = ArgumentParser(prog="python -m dataset_tools.validate", description="Check every file of a data set; exit 1 on any problem.")
+    ap = ArgumentParser(prog="python -m dataset_tools validate", description="Check every file of a data set; exit 1 on any problem.")
     ap.add_argument("dataset")
     ap.add_argument("--no-labels", action="store_true", help="renders only (before fusion)")
     ap.add_argument("--audit-threshold", type=float, metavar="SHARE",
-                    help="fail when audit.json (python -m dataset_tools.audit) has more than this share of "
+                    help="fail when audit.json (python -m dataset_tools audit) has more than this share of "
                          "visible cells with no line of sight (its metric, default 'unexplained')")
     args = ap.parse_args(argv)
     problems = validate(args.dataset, labels=not args.no_labels, audit_threshold=args.audit_threshold)
