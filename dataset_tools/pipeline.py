@@ -46,7 +46,12 @@ def _merge(config, out, parts, progress) -> int:
     problems = merge(Path(out), [Path(p) for p in parts], expected, progress=progress)
     for p in problems:
         print(f"merge: {p}", file=sys.stderr)
-    return EXIT_PROBLEMS if problems else 0
+    if problems:
+        return EXIT_PROBLEMS
+    from .qa.contact_sheet import make_sheets
+
+    make_sheets(Path(out))  # as generate does after rendering
+    return 0
 
 
 def _fuse(config, out, backend, workers, address, progress) -> int:

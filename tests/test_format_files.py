@@ -109,5 +109,4 @@ def test_format_imports_only_common_geometry_and_itself():
             m = re.match(r"\s*(?:from|import) ([.\w]+)", line)
             if m and (m.group(1).startswith("..") or m.group(1).split(".")[0] in ("dataset_tools", "blender_scripts", "model", "testing")):
                 bad.append(f"{path.name}: {line.strip()}")
-    known = {"merge.py: from ..qa.contact_sheet import make_sheets"}  # merge's contact sheets move to the pipeline verb
-    assert [b for b in bad if b not in known] == []
+    assert bad == []

@@ -46,14 +46,7 @@ def test_entry_scripts_do_not_import_each_other_or_fixtures():
         assert not imported & (set(ENTRY_SCRIPTS) | {"testing"}) - {name}, f"{name}.py imports {imported}"
 
 
-# Contracts broken on branch i20-lint alone (issue 20's other branches fix the imports named). strict: once
-# the contract holds, the XPASS fails the run, so that its entry here is deleted.
-AFTER_MERGE = {
-    "format-base": "format/constructed.py (fixtures), format/index.py and format/merge.py import labels/qa",
-    "dataset-tools-layers": "format imports labels/qa; labels/ray_fuse.py -> fuse -> generation -> qa",
-    "no-entry-scripts": "experiments/ablation.py imports train and eval; bench/model.py imports train",
-    "acyclic": "cycles fuse <-> labels/ray_fuse, generation/driver <-> ray_pool, format <-> labels/qa",
-}
+AFTER_MERGE: dict = {}  # contracts known to be broken, with the reason (none)
 
 
 @pytest.mark.parametrize("contract", [

@@ -5,7 +5,7 @@ Checks first, writes nothing on a problem: every part's manifest reads, no frame
 every file a manifest line lists is there, and (with the dataset config) the parts together hold
 exactly the config's frames. Then copies each frame folder into OUT (through a temp folder and a
 rename: a killed merge leaves no half frame, and a rerun finishes it), appends the manifest lines
-in (scene, frame) order, copies recipes/, and writes index.json and the contact sheets.
+in (scene, frame) order, copies recipes/, and writes index.json (the pipeline draws the contact sheets).
 OUT may be one of the parts (its frames stay where they are).
 """
 
@@ -99,7 +99,4 @@ def merge(out, parts, expected: set | None = None, progress: bool = True) -> lis
                 (out / RECIPES_DIR).mkdir(exist_ok=True)
                 shutil.copy2(recipe, out / RECIPES_DIR / recipe.name)
     write_index(out, build_index(out, class_names))
-    from ..qa.contact_sheet import make_sheets
-
-    make_sheets(out)
     return []
