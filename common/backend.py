@@ -8,24 +8,40 @@ between them (`--backend local|ray`), for rendering and fusion alike.
 
 `map` runs stateless jobs: locally in `workers` spawned processes (in this process when
 workers <= 1), results in job order; on Ray as tasks in batches, results as batches finish (a
-batch lost with its node is run again: jobs must be idempotent). `start` makes one stateful worker: locally the object itself, on Ray an actor owning
+batch lost with its node is run again: jobs must be idempotent; `workers` caps the batches running
+at once). `start` makes one stateful worker: locally the object itself, on Ray an actor owning
 it whose `run` streams back what it yields; an actor that dies raises WorkerLost, an exception
 the worker raises arrives as itself. Ray is imported only by the Ray backend.
+
+Lifetimes: local pool processes die with the command (common.lifetime). On Ray, when no node with
+a CPU has been alive for RAY_NODE_TIMEOUT_S seconds (env FISHEYE_BEV_RAY_NODE_TIMEOUT_S, default
+60) while work waits, `map` and a worker's `run` raise ClusterGone (one line, exit 1); what was
+finished is on disk, so the same command run again resumes.
 """
 
 from __future__ import annotations
 
 import os
+import time
 from pathlib import Path
 
-from .errors import InputError
+from .errors import InputError, MachineError
+from .lifetime import DieWithParent
 
 BACKENDS = ("local", "ray")
 REPO = Path(__file__).resolve().parents[1]  # on the Ray workers' PYTHONPATH
 
 
+RAY_NODE_TIMEOUT_S = 60.0  # default wait for a live Ray node with a CPU (docs/scaling.md)
+POLL_S = 1.0
+
+
 class WorkerLost(Exception):
     """A worker (process, Ray actor or node) went away mid-job: its unfinished work can be redone."""
+
+
+class ClusterGone(MachineError):
+    """No Ray node with a CPU has been alive for the node timeout: the run stops, resumable."""
 
 
 def add_backend_args(ap) -> None:
@@ -52,8 +68,9 @@ _FN = None
 _SHARED = None
 
 
-def _init_process(fn, shared) -> None:
+def _init_process(fn, shared, parent) -> None:
     global _FN, _SHARED
+    parent()  # a pool process dies with the command that started it (common.lifetime)
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     _FN, _SHARED = fn, shared
 
@@ -82,7 +99,7 @@ class LocalBackend:
         from multiprocessing import get_context
 
         pool = ProcessPoolExecutor(self.workers, mp_context=get_context("spawn"), initializer=_init_process,
-                                   initargs=(fn, shared))
+                                   initargs=(fn, shared, DieWithParent()))
         try:
             yield from pool.map(_call, jobs, chunksize=4)
         finally:
@@ -129,9 +146,12 @@ class RayBackend:
         batch = batch or max(1, min(16, -(-len(jobs) // (4 * cpus))))
         task = ray.remote(num_cpus=1, max_retries=3)(_run_batch)
         shared_ref = ray.put(shared)
-        pending = [task.remote(fn, jobs[i:i + batch], shared_ref) for i in range(0, len(jobs), batch)]
-        while pending:
-            ready, pending = ray.wait(pending, num_returns=1)
+        batches = [jobs[i:i + batch] for i in range(0, len(jobs), batch)]
+        cap, pending = self.workers or len(batches), []
+        while pending or batches:
+            while batches and len(pending) < cap:
+                pending.append(task.remote(fn, batches.pop(0), shared_ref))
+            ready, pending = wait_for_nodes(ray, pending)
             yield from ray.get(ready[0])
 
     def threads_per_worker(self, workers: int, threads: int) -> int:
@@ -161,14 +181,50 @@ def _actor_class(ray, factory, cpus: int, name: str):
     return ray.remote(num_cpus=cpus, max_restarts=0, max_task_retries=0)(Actor)
 
 
+def node_timeout_s() -> float:
+    return float(os.environ.get("FISHEYE_BEV_RAY_NODE_TIMEOUT_S", RAY_NODE_TIMEOUT_S))
+
+
+def live_cpus(ray) -> int:
+    return sum(int(n["Resources"].get("CPU", 0)) for n in ray.nodes() if n["Alive"])
+
+
+def wait_for_nodes(ray, refs: list):
+    """ray.wait(refs, num_returns=1), but ClusterGone once no live node has had a CPU for
+    node_timeout_s() seconds (Ray itself would wait for one forever)."""
+    timeout, since = node_timeout_s(), None
+    while True:
+        ready, rest = ray.wait(refs, num_returns=1, timeout=POLL_S)
+        if ready:
+            return ready, rest
+        if live_cpus(ray) > 0:
+            since = None
+        elif since is None:
+            since = time.monotonic()
+        elif time.monotonic() - since >= timeout:
+            raise ClusterGone(f"--backend ray: no live Ray node with a CPU for {timeout:g} s; finished work is kept: "
+                              f"run the same command again when the cluster is back")
+
+
 class _ActorWorker:
     def __init__(self, ray, actor):
         self.ray, self.actor = ray, actor
+        self.gone = False  # the cluster went away: nothing to stop gracefully
 
     def run(self, job):
         ray = self.ray
         try:
-            for ref in self.actor.run.remote(job):
+            stream = self.actor.run.remote(job)
+            while True:
+                try:
+                    wait_for_nodes(ray, [stream])
+                except ClusterGone:
+                    self.gone = True
+                    raise
+                try:
+                    ref = next(stream)
+                except StopIteration:
+                    return
                 yield ray.get(ref)
         except ray.exceptions.RayError as exc:  # the worker's own exception arrives wrapped (as .cause)
             cause = getattr(exc, "cause", None)
@@ -178,7 +234,8 @@ class _ActorWorker:
 
     def close(self) -> None:
         try:  # let the worker exit cleanly (its temp folder), then free the actor's CPUs
-            self.ray.get(self.actor.stop.remote(), timeout=60)
+            if not self.gone:
+                self.ray.get(self.actor.stop.remote(), timeout=60)
         except Exception:  # noqa: BLE001 - already dead
             pass
         try:

@@ -1,7 +1,8 @@
 """Connecting to Ray for `--backend ray` (generation and fusion); the only module that starts Ray.
 
 `address` None: the cluster named by RAY_ADDRESS if that is set ("auto"), else a Ray instance on
-this machine, bound to loopback only (127.0.0.1, no dashboard). Usage statistics are always off.
+this machine, bound to loopback only (127.0.0.1, no dashboard), whose processes end with this
+command (common.lifetime.guard_descendants). Usage statistics are always off.
 Imported only by the Ray backends: the local pool needs no Ray installed.
 """
 
@@ -11,6 +12,7 @@ import os
 import sys
 
 from .errors import InputError
+from .lifetime import guard_descendants
 
 
 def default_address() -> str | None:
@@ -42,6 +44,8 @@ def connect(address: str | None = None, num_cpus: int | None = None, code_dir=No
                   logging_level="WARNING")
     try:
         if address is None or address == "local":
+            # a Ray instance of this command: its workers and agents (children of its raylet) end with it
+            guard_descendants()
             ray.init(num_cpus=num_cpus, include_dashboard=False, _node_ip_address="127.0.0.1", **kwargs)
         else:
             ray.init(address=address, **kwargs)

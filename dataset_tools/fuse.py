@@ -3,9 +3,12 @@
     python -m dataset_tools fuse <dataset> [--workers N] [--config configs/dataset/small.yaml] [--force]
                                  [--backend ray [--address ADDR]]
 
-Resumable: a frame whose three label PNGs exist is skipped (each PNG is written atomically, the
-visibility last); `--force` redoes every frame. Per-frame work is `labels.fusion.fuse_frame`, run
-through common.backend: a local process pool, or Ray tasks in batches (`--backend ray`).
+Resumable: a frame whose three label PNGs look whole is skipped (each PNG is written atomically,
+the visibility last); a label that is missing, empty, cut short or of the wrong size
+(`format.labels.label_damage`: header, end and size, no decoding) is redone, with one notice line;
+`--force` redoes every frame. Per-frame work is `labels.fusion.fuse_frame`, run through
+common.backend: a local process pool (`--workers` processes), or Ray tasks in batches (`--backend
+ray`; `--workers` then caps the batches running at once).
 """
 
 from __future__ import annotations
@@ -19,8 +22,9 @@ from common.files import clean_stale_temps
 from common.lock import hold_lock
 
 from .format.index import build_index, write_index
-from .format.labels import write_labels
+from .format.labels import label_damage, write_labels
 from .format.layout import DatasetError, FrameFiles, Manifest
+from .format.meta import read_meta
 from .labels.fusion import FusionConfig, fuse_frame
 
 
@@ -33,20 +37,47 @@ def fuse_one(frame_dir: str, cfg: FusionConfig):
         return frame_dir, str(exc)
 
 
-def frames_to_fuse(root, force: bool = False) -> list[str]:
+def frames_and_damage(root, force: bool = False) -> list[tuple[str, str | None]]:
+    """(frame dir, why its existing labels are redone or None) for every frame to fuse: all with
+    `force`, else those without three whole label PNGs."""
     root = Path(root)
     todo = [str(root / e["dir"]) for e in Manifest(root).entries()]
-    return todo if force else [d for d in todo if not FrameFiles(d).labels_done()]
+    if force:
+        return [(d, None) for d in todo]
+    out = []
+    for d in todo:
+        if not any(p.exists() for p in FrameFiles(d).label_paths()):
+            out.append((d, None))  # never fused
+            continue
+        try:
+            shape = read_meta(d).grid().shape
+        except DatasetError:
+            out.append((d, None))  # fusing it names the problem
+            continue
+        damage = label_damage(d, shape)
+        if damage:
+            out.append((d, damage))
+    return out
 
 
-def fuse_dataset(root, cfg: FusionConfig, workers: int = 1, force: bool = False, progress: bool = True,
+def damage_notice(damaged: list[str]) -> str:
+    """One line for the frames whose labels a resume redoes."""
+    more = f" (and {len(damaged) - 1} more)" if len(damaged) > 1 else ""
+    return f"fuse: redoing {len(damaged)} frame(s) whose labels are damaged: {damaged[0]}{more}"
+
+
+def fuse_dataset(root, cfg: FusionConfig, workers: int | None = None, force: bool = False, progress: bool = True,
                  backend: str = "local", address: str | None = None) -> list[str]:
-    """Fuse every manifest frame that has no labels yet; returns the problems (one line each)."""
+    """Fuse every manifest frame that has no whole labels yet; returns the problems (one line each)."""
     from tqdm import tqdm
 
     root = Path(root)
     clean_stale_temps(root)
-    todo = frames_to_fuse(root, force)
+    planned = frames_and_damage(root, force)
+    damaged = [why for _, why in planned if why]
+    if damaged:
+        print(damage_notice(damaged), file=sys.stderr)
+    todo = [d for d, _ in planned]
     problems = []
     with tqdm(total=len(todo), desc="fuse", unit="frame", disable=not progress) as bar:
         for _, err in make_backend(backend, workers, address).map(fuse_one, todo, shared=cfg):
@@ -61,17 +92,18 @@ def main(argv=None) -> int:
     ap = ArgumentParser(prog="python -m dataset_tools fuse",
                         description="Fuse rendered frames into BEV labels (semantic, instance, visibility).")
     ap.add_argument("dataset")
-    ap.add_argument("--workers", type=int, default=1, help="processes (default 1)")
+    ap.add_argument("--workers", type=int, default=None,
+                    help="processes (default 1); with --backend ray: at most this many batches at once (default: no cap)")
     ap.add_argument("--config", help="dataset config YAML whose 'labels:' section sets the fusion")
     ap.add_argument("--force", action="store_true", help="redo frames that already have labels")
     add_backend_args(ap)
     ap.add_argument("--no-progress", action="store_true")
     args = ap.parse_args(argv)
-    if args.workers < 1:
+    if args.workers is not None and args.workers < 1:
         raise DatasetError(f"--workers: must be >= 1, got {args.workers}")
     cfg = FusionConfig.load(args.config) if args.config else FusionConfig()
     if not Manifest(args.dataset).exists():
-        raise DatasetError(f"{Manifest(args.dataset).path}: missing")
+        raise DatasetError(f"dataset: {Manifest(args.dataset).path}: missing (not a generated data set)")
     with hold_lock(args.dataset):  # a second fuse (or a generate) on this data set is refused
         problems = fuse_dataset(args.dataset, cfg, args.workers, args.force, progress=not args.no_progress,
                                 backend=args.backend, address=args.address)

@@ -20,6 +20,7 @@ from torch.utils.data import DataLoader, Subset
 
 from common.errors import InputError
 from common.files import output_dir, write_bytes_atomic, write_json_atomic, write_text_atomic
+from common.lifetime import DieWithParent
 from dataset_tools import SPLITS, DatasetIndex, read_frame
 
 from .checkpoint import load_checkpoint
@@ -46,7 +47,8 @@ def score(model, ds, on_batch, frames=None, batch_size: int = 1, num_workers: in
     training = model.training
     model.eval()
     indices = list(range(len(ds)) if frames is None else frames)[rank::world]
-    loader = DataLoader(Subset(ds, indices), batch_size=batch_size, num_workers=num_workers, generator=torch.Generator())
+    loader = DataLoader(Subset(ds, indices), batch_size=batch_size, num_workers=num_workers, generator=torch.Generator(),
+                        worker_init_fn=DieWithParent())
     if desc is not None:
         from tqdm import tqdm
 

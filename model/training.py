@@ -26,6 +26,7 @@ from torch.utils.data import DataLoader
 
 from common.errors import ConfigError, MachineError
 from common.files import clean_stale_temps, read_json, write_json_atomic
+from common.lifetime import DieWithParent
 from common.schema import deep_merge
 from dataset_tools import DatasetIndex, colorize_train
 
@@ -218,7 +219,7 @@ def train_one_epoch(run: Run, bar, alpha: torch.Tensor, max_steps: int | None) -
     # own generator: creating an iterator must not draw from the global RNG (dropout), or a
     # resumed run would diverge from an uninterrupted one
     loader = DataLoader(run.train_ds, batch_sampler=sampler, num_workers=cfg["data"]["num_workers"],
-                        generator=torch.Generator().manual_seed(t["seed"] + run.epoch))
+                        generator=torch.Generator().manual_seed(t["seed"] + run.epoch), worker_init_fn=DieWithParent())
     batches = iter(loader)
     t0, samples = time.time(), 0
     while True:
@@ -264,8 +265,9 @@ def train(cfg: dict, out_dir: Path, quiet: bool = False) -> dict:
     train.epochs or train.max_steps. -> {'step', 'losses' (this call's), 'val' (the last
     validation metrics or None), 'best' (best validation mIoU)}. A stop request (Ctrl-C, SIGTERM)
     saves latest.pt and raises KeyboardInterrupt."""
-    from torch.utils.tensorboard import SummaryWriter
     from tqdm import tqdm
+
+    from .tensorboard_log import TensorBoardLog
 
     run = prepare(cfg, out_dir, quiet)
     resume(run)
@@ -273,7 +275,7 @@ def train(cfg: dict, out_dir: Path, quiet: bool = False) -> dict:
     run.ddp = torch.nn.parallel.DistributedDataParallel(run.model) if run.world > 1 else run.model
     alpha = class_weights(cfg["loss"]["class_weights"]).to(run.device)
     if run.main:
-        run.writer = SummaryWriter(str(run.dir.tb))
+        run.writer = TensorBoardLog(run.dir.tb)  # a write error: one line naming tb/, exit 1
     run.stop = GracefulStop(run.world)
     max_steps = t["max_steps"] or None
     total = min(max_steps or 10**12, len(run.train_ds) // t["batch_size"] * t["epochs"])

@@ -81,7 +81,7 @@ add("gen-scene-name-dotdot", "generate", gen(scenes=[{"recipe": "scenes/highway_
 add("gen-scene-name-dotdot-only", "generate", gen(scenes=[{"recipe": "scenes/highway_straight.yaml", "name": ".."}]),
     needles=("ds.yaml", "scenes[0].name"))
 add("gen-override-name-escapes", "generate", gen(scenes=[{"recipe": "scenes/highway_straight.yaml", "overrides": {"name": "../../e"}}]),
-    needles=("highway_straight.yaml", "name"))
+    needles=("ds.yaml", "scenes[0].overrides.name"))
 add("gen-config-name-escapes", "generate", gen(name="../up"), needles=("ds.yaml", "name"))
 add("gen-non-utf8", "generate", gen_raw(NON_UTF8), needles=("ds.yaml", "UTF-8"))
 add("gen-billion-laughs", "generate", gen_raw(BILLION_LAUGHS), needles=("ds.yaml", "aliases"))
@@ -95,11 +95,25 @@ add("gen-overrides-list", "generate", gen(scenes=[{"recipe": "scenes/highway_str
 add("gen-overrides-scalar", "generate", gen(scenes=[{"recipe": "scenes/highway_straight.yaml", "overrides": 5}]),
     needles=("ds.yaml", "scenes[0].overrides"))
 add("gen-overrides-section-scalar", "generate", gen(scenes=[{"recipe": "scenes/highway_straight.yaml", "overrides": {"layout": 3}}]),
-    needles=("highway_straight.yaml", "layout"))
+    needles=("ds.yaml", "scenes[0].overrides.layout", "mapping"))
+# issue 25: an override is blamed where it was written (the dataset config), not on the recipe it overrides
+add("gen-overrides-frames-scalar", "generate", gen(scenes=[{"recipe": "scenes/highway_straight.yaml", "overrides": {"frames": 5}}]),
+    needles=("ds.yaml", "scenes[0].overrides.frames", "mapping"))
+add("gen-overrides-frames-count-zero", "generate", gen(scenes=[{"recipe": "scenes/highway_straight.yaml", "overrides": {"frames": {"count": 0}}}]),
+    needles=("ds.yaml", "scenes[0].overrides.frames.count"))
+add("gen-overrides-layout-unknown", "generate", gen(scenes=[{"recipe": "scenes/highway_straight.yaml", "overrides": {"layout": {"lanes": 2}}}]),
+    needles=("ds.yaml", "scenes[0].overrides.layout.lanes"))
+add("gen-overrides-family-typo", "generate", gen(scenes=[{"recipe": "scenes/highway_straight.yaml", "overrides": {"family": "motorway"}}]),
+    needles=("ds.yaml", "scenes[0].overrides.family"))
 add("gen-overrides-unknown", "generate", gen(scenes=[{"recipe": "scenes/highway_straight.yaml", "overrides": {"colour": 3}}]),
     needles=("ds.yaml", "overrides.colour"))
 add("gen-recipe-int", "generate", gen(scenes=[{"recipe": 7}]), needles=("ds.yaml", "scenes[0].recipe"))
-add("gen-recipe-missing-file", "generate", gen(scenes=[{"recipe": "scenes/nope.yaml"}]), needles=("nope.yaml", "missing"))
+add("gen-recipe-missing-file", "generate", gen(scenes=[{"recipe": "scenes/nope.yaml"}]),
+    needles=("ds.yaml", "scenes[0].recipe", "nope.yaml", "missing"))
+add("gen-recipe-missing-file-4th", "generate", gen(scenes=[{"recipe": "scenes/highway_straight.yaml", "name": f"s{i}"} for i in range(3)]
+                                                   + [{"recipe": "scenes/nope.yaml"}]),
+    needles=("ds.yaml", "scenes[3].recipe", "nope.yaml", "missing"))
+add("gen-recipe-folder", "generate", gen(scenes=[{"recipe": "scenes"}]), needles=("ds.yaml", "scenes[0].recipe", "folder"))
 add("gen-scene-not-mapping", "generate", gen(scenes=["scenes/highway_straight.yaml"]), needles=("ds.yaml", "scenes[0]"))
 add("gen-scenes-empty", "generate", gen(scenes=[]), needles=("ds.yaml", "scenes"))
 add("gen-scenes-mapping", "generate", gen(scenes={"a": 1}), needles=("ds.yaml", "scenes"))
@@ -183,8 +197,8 @@ def _(ctx):
 
 
 add("gen-config-missing", "generate", lambda ctx: ["--config", str(ctx.ws / "none.yaml"), "--out", str(ctx.out)],
-    needles=("none.yaml", "missing"))
-add("gen-config-folder", "generate", lambda ctx: ["--config", str(ctx.ws), "--out", str(ctx.out)], needles=("folder",))
+    needles=("--config", "none.yaml", "missing"))
+add("gen-config-folder", "generate", lambda ctx: ["--config", str(ctx.ws), "--out", str(ctx.out)], needles=("--config", "folder"))
 
 # ------------------------------------------------------------------ data set commands
 
@@ -247,17 +261,23 @@ MANIFEST_BAD = [("dir-int", b'{"scene": "s", "frame": 0, "split": "train", "dir"
                 ("dir-escapes", b'{"scene": "s", "frame": 0, "split": "train", "dir": "../../x"}', "dir"),
                 ("non-utf8", b'{"scene": "s\xff", "frame": 0, "split": "train", "dir": "s/000000"}', "UTF-8"),
                 ("list", b'[1, 2]', "JSON object"),
-                ("frame-negative", b'{"scene": "s", "frame": -1, "split": "train", "dir": "s/000000"}', "frame")]
+                ("frame-negative", b'{"scene": "s", "frame": -1, "split": "train", "dir": "s/000000"}', "frame"),
+                ("files-int", b'{"scene": "s", "frame": 0, "split": "train", "dir": "s/000000", "files": 7}', "files"),
+                ("files-escape", b'{"scene": "s", "frame": 0, "split": "train", "dir": "s/000000", "files": ["../../x"]}', "files")]
 for _id, _line, _field in MANIFEST_BAD:
     add(f"index-manifest-{_id}", "index", on_ds(edit=manifest_line(_line)), needles=("manifest.jsonl", "line 3", _field))
 add("fuse-manifest-dir-int", "fuse", on_ds("--no-progress", edit=manifest_line(MANIFEST_BAD[0][1])), needles=("manifest.jsonl", "dir"))
 add("fuse-manifest-non-utf8", "fuse", on_ds("--no-progress", edit=manifest_line(MANIFEST_BAD[2][1])), needles=("manifest.jsonl", "UTF-8"))
+add("fuse-manifest-files-int", "fuse", on_ds("--no-progress", edit=manifest_line(MANIFEST_BAD[5][1])), needles=("manifest.jsonl", "line 3", "files"))
+# validate lists every problem (stdout) and exits 1 (problems found); its one stderr line names the first
+add("validate-manifest-files-int", "validate", on_ds(edit=manifest_line(MANIFEST_BAD[5][1])), code=1,
+    needles=("1 problem", "manifest.jsonl", "line 3", "files"))
 add("index-meta-list", "index", on_ds(edit=meta(b"[1, 2]")), needles=("meta.json", "JSON object"))
 add("index-meta-non-utf8", "index", on_ds(edit=meta(b'{"a": "\xff"}')), needles=("meta.json", "UTF-8"))
 add("index-meta-not-json", "index", on_ds(edit=meta(b'{"a": ')), needles=("meta.json", "JSON"))
 add("index-no-manifest", "index", lambda ctx: [str(ctx.ws / "empty")], needles=("manifest.jsonl", "missing"))
 add("index-empty-manifest", "index", on_ds(edit=lambda ctx, ds: (ds / "manifest.jsonl").write_text("")), needles=("manifest.jsonl", "no frames"))
-add("fuse-no-manifest", "fuse", lambda ctx: [str(ctx.ws / "empty"), "--no-progress"], needles=("manifest.jsonl", "missing"))
+add("fuse-no-manifest", "fuse", lambda ctx: [str(ctx.ws / "empty"), "--no-progress"], needles=("dataset", "manifest.jsonl", "missing"))
 add("fuse-workers-zero", "fuse", on_ds("--workers", "0"), needles=("--workers",))
 add("fuse-config-bomb", "fuse", lambda ctx: [str(ctx.ds()), "--config", str(ctx.write("cfg/l.yaml", BILLION_LAUGHS))],
     needles=("l.yaml", "aliases"))
@@ -275,7 +295,7 @@ add("report-frames-text", "report", on_ds("--frames-per-scene", "many"), needles
 add("dataset-workers-text", "dataset", lambda ctx: ["--config", str(ctx.dataset_config()), "--out", str(ctx.out), "--workers", "many"],
     needles=("--workers",))
 add("dataset-config-missing", "dataset", lambda ctx: ["--config", str(ctx.ws / "none.yaml"), "--out", str(ctx.out)],
-    needles=("none.yaml", "missing"))
+    needles=("--config", "none.yaml", "missing"))
 add("fuse-camera-exr-garbage", "fuse", on_ds("--force", "--no-progress", edit=exr_garbage("cam_front.exr")), code=1,
     needles=("cam_front.exr", "EXR"))
 

@@ -271,6 +271,49 @@ def test_full_disk_is_exit_1_and_one_line(command, tmp_path, mini_dataset, reque
         assert not no_temps(disk)
 
 
+@contextlib.contextmanager
+def full_disk(folder: Path, free: int, size: str = "2m"):
+    """A tmpfs at `folder` filled up to `free` bytes (page-rounded) of room."""
+    with small_tmpfs(folder, size) as disk:
+        with contextlib.suppress(OSError), open(disk / "filler", "wb") as f:
+            while True:
+                f.write(b"\0" * 65536)
+                f.flush()
+        os.truncate(disk / "filler", max(0, (disk / "filler").stat().st_size - free))
+        yield disk
+
+
+EVAL_OUTPUTS = ("metrics.json", "table.md", "confusion_train.png", "frame_train_*.png")
+
+
+@pytest.mark.parametrize("free_kb", [0, 4, 24, 96, 320])
+@pytest.mark.parametrize("command", ["train", "eval"])
+def test_a_full_disk_at_any_point_fails_loudly_or_writes_everything(command, free_kb, tmp_path, mini_dataset, request):
+    """Issue 25: however little room is left, the command either writes every output whole (exit
+    0) or exits 1 with one line naming the folder; never exit 0 with an output missing, never a
+    temp file left behind."""
+    ctx = Ctx(tmp_path, mini_dataset, request)
+    with full_disk(tmp_path / "disk", free_kb * 1024) as disk:
+        out = disk / "out"
+        argv = {"train": lambda: ["--config", str(ctx.train_config()), "--out", str(out), "--quiet"],
+                "eval": lambda: ["--checkpoint", str(ctx.checkpoint), "--data", str(mini_dataset), "--out", str(out), "--pictures", "1"],
+                }[command]()
+        code, stderr = run_in_process(command, argv)
+        if code == 0:
+            assert error_lines(stderr) == [], stderr
+            if command == "eval":
+                assert all(list(out.glob(g)) for g in EVAL_OUTPUTS), sorted(p.name for p in out.iterdir())
+                json.loads((out / "metrics.json").read_text())
+            else:
+                import torch
+
+                assert torch.load(out / "latest.pt", map_location="cpu", weights_only=False)["step"] == 2
+                assert [p for p in (out / "tb").iterdir() if p.stat().st_size > 0]
+        else:
+            assert_one_line(code, stderr, 1, str(disk), "No space left")
+        assert not no_temps(disk)
+
+
 @pytest.mark.parametrize("command", ["generate", "fuse", "train", "eval", "index"])
 def test_read_only_output_is_exit_1_and_one_line(command, tmp_path, mini_dataset, request):
     ctx = Ctx(tmp_path, mini_dataset, request)

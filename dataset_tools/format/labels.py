@@ -1,5 +1,6 @@
 """A frame's label PNGs (labels/semantic.png, instance.png, visibility.png): the one encoder
-(`write_labels`), decoder (`read_labels`) and check (`label_problems`).
+(`write_labels`), decoder (`read_labels`) and check (`label_problems`; `label_damage`, without
+decoding, for a resume).
 
     semantic    uint8, training class id per cell
     instance    uint16, vehicle instance id per cell (0 elsewhere)
@@ -16,6 +17,8 @@ from .layout import VISIBILITY_SCALE, DatasetError, FrameFiles
 from .png import encode_png, read_png
 
 LABEL_DTYPES = {"semantic": np.uint8, "instance": np.uint16, "visibility": np.uint16}
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+PNG_END = b"\x00\x00\x00\x00IEND\xaeB`\x82"  # the IEND chunk every whole PNG ends with
 
 
 def write_labels(frame_dir, labels: dict) -> None:
@@ -45,6 +48,44 @@ def _check(arrays: dict, paths: dict, shape, num_classes) -> list[str]:
     if num_classes is not None and sem is not None and sem.max(initial=0) >= num_classes:
         problems.append(f"{paths['semantic']}: class id {int(sem.max())}, beyond the {num_classes} classes of the data set")
     return problems
+
+
+def _png_damage(path, dtype, shape) -> str | None:
+    """Why a label PNG cannot be trusted, from its first 26 and last 12 bytes: missing, empty, not
+    a PNG, cut short (no IEND at the end), not one-channel of the label's bit depth, or not
+    `shape` (H, W) pixels. None when it looks whole."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(26)
+            size = f.seek(0, 2)
+            f.seek(max(0, size - len(PNG_END)))
+            tail = f.read()
+    except FileNotFoundError:
+        return "missing"
+    except OSError as exc:
+        return f"cannot read ({exc.strerror})"
+    if size == 0:
+        return "empty (0 bytes)"
+    if len(head) < 26 or not head.startswith(PNG_SIGNATURE) or head[12:16] != b"IHDR":
+        return "not a PNG"
+    if tail != PNG_END:
+        return f"cut short ({size} bytes, no PNG end)"
+    width, height = int.from_bytes(head[16:20], "big"), int.from_bytes(head[20:24], "big")
+    if head[24] != 8 * np.dtype(dtype).itemsize or head[25] != 0:
+        return f"bit depth {head[24]}, colour type {head[25]}: not a {np.dtype(dtype)} label"
+    if shape is not None and (height, width) != tuple(shape):
+        return f"{(height, width)} pixels, the label grid is {tuple(shape)}"
+    return None
+
+
+def label_damage(frame_dir, shape=None) -> str | None:
+    """The first label PNG of the frame that is missing or damaged, as `path: what`, checked
+    cheaply (`_png_damage`: header, end and size, no decoding); None when all three look whole."""
+    for k, path in _paths(FrameFiles(frame_dir)).items():
+        what = _png_damage(path, LABEL_DTYPES[k], shape)
+        if what:
+            return f"{path}: {what}"
+    return None
 
 
 def label_problems(frame_dir, shape=None, num_classes: int | None = None) -> list[str]:

@@ -84,9 +84,6 @@ class FrameFiles:
     def label_paths(self) -> list[Path]:
         return [self.labels / n for n in LABEL_PNGS]
 
-    def labels_done(self) -> bool:
-        return all(p.is_file() and p.stat().st_size > 0 for p in self.label_paths())
-
 
 def _complete_lines(path: Path) -> list[bytes]:
     """The newline-terminated lines of a file (a torn last line is left out)."""
@@ -178,4 +175,12 @@ def _parse(line: bytes):
         return None, "field 'dir' must be a relative path inside the data set"
     if not isinstance(e["split"], str):
         return None, "field 'split' must be a string"
+    if "files" in e and not _file_names(e["files"]):
+        return None, "field 'files' must be a list of file names inside the frame folder"
     return e, None
+
+
+def _file_names(files) -> bool:
+    """A list of relative paths that stay inside the frame folder."""
+    return isinstance(files, list) and all(
+        isinstance(f, str) and f and not Path(f).is_absolute() and ".." not in Path(f).parts for f in files)

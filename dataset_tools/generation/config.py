@@ -78,9 +78,14 @@ def resolve(path, base: Path) -> Path:
     return base / p if (base / p).exists() else REPO / p
 
 
-def load_config(path) -> dict:
-    """The dataset config with every scene's recipe loaded and checked."""
+def load_config(path, option: str = "--config") -> dict:
+    """The dataset config with every scene's recipe loaded and checked (`option`: what named the
+    file, for the message when it is missing)."""
     path = Path(path)
+    if path.is_dir():
+        raise ConfigError(f"{option}: {path}: is a folder, not a file")
+    if not path.exists():
+        raise ConfigError(f"{option}: {path}: missing")
     d = read_yaml(path)
     cfg = SCHEMA.validate(d, str(path))
     cfg["name"] = cfg["name"] or SCHEMA.fields["name"].validate(path.stem, f"{path}: name")
@@ -100,7 +105,8 @@ def load_config(path) -> dict:
             split, sampled = s["split"], True
         else:
             s = SCENE.validate(s, where)
-            recipe = load_recipe(resolve(s["recipe"], path.parent), s["overrides"])
+            recipe = load_recipe(_recipe_file(s["recipe"], path.parent, f"{where}.recipe"), s["overrides"],
+                                 f"{where}.overrides")
             recipe["name"] = s["name"] or recipe["name"]
             recipes, split, sampled = [recipe], s["split"], False
             if split == "train" and (recipe["family"] in hold["families"] or recipe["weather"]["preset"] in hold["weather"]):
@@ -119,6 +125,16 @@ def load_config(path) -> dict:
     _check_disjoint(scenes, path)
     cfg["scenes"] = scenes
     return cfg
+
+
+def _recipe_file(name: str, base: Path, where: str) -> Path:
+    """The recipe a scene entry names; a missing one is named with the field that points there."""
+    p = resolve(name, base)
+    if p.is_dir():
+        raise ConfigError(f"{where}: {p}: is a folder, not a file")
+    if not p.is_file():
+        raise ConfigError(f"{where}: {p}: missing")
+    return p
 
 
 def _sampled(s: dict, hold: dict, blocks: dict, where: str) -> list[dict]:

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import os
 import queue
-import signal
 import subprocess
 import sys
 from concurrent.futures import ThreadPoolExecutor
@@ -21,6 +20,7 @@ from common.backend import WorkerLost, make_backend
 from common.cli import EXIT_PROBLEMS
 from common.errors import ConfigError
 from common.files import clean_stale_temps, write_text_atomic
+from common.lifetime import DieWithParent
 from common.worker_protocol import RenderTask, read_message
 
 from ..format.layout import RECIPES_DIR, Manifest, frame_dir_name
@@ -47,17 +47,6 @@ def write_recipes(cfg: dict, out: Path) -> None:
             write_text_atomic(path, text)
 
 
-def _die_with_parent() -> None:
-    """In the worker, before exec: get SIGKILL when the driver dies (Linux), so a killed driver
-    leaves no Blender process writing into --out."""
-    try:
-        import ctypes
-
-        ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
-    except (OSError, AttributeError):
-        pass
-
-
 class WorkerFailed(Exception):
     """The worker reported an error for its task (deterministic: the run stops)."""
 
@@ -80,7 +69,7 @@ class WorkerProcess:
         self.proc = subprocess.Popen([sys.executable, "-m", "blender_scripts.worker"], cwd=str(REPO), env=env,
                                      stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,
                                      text=True, bufsize=1,
-                                     preexec_fn=_die_with_parent if sys.platform.startswith("linux") else None)
+                                     preexec_fn=DieWithParent())  # no Blender outlives its driver
 
     def run(self, task: RenderTask):
         """Yield the worker's "frame" messages for `task`; WorkerFailed / WorkerLost otherwise."""

@@ -77,11 +77,29 @@ SCHEMA = Section({
 DEFAULTS = SCHEMA.defaults()
 
 
-def validate_recipe(d, source: str = "recipe", overrides: dict | None = None) -> dict:
-    """Checked recipe with defaults filled in. `overrides` (same shape) are merged first."""
+def check_overrides(overrides: dict, where: str) -> None:
+    """Each override checked on its own, so a bad one is named where it was written (`where`:
+    e.g. `ds.yaml: scenes[3].overrides`), not in the recipe it overrides."""
+    if not isinstance(overrides, dict):
+        raise RecipeError(f"{where}: must be a mapping of sections")
+    for sec, vals in overrides.items():
+        field = SCHEMA.fields.get(sec)
+        if field is None:
+            raise RecipeError(f"{where}.{sec}: unknown field (known: {', '.join(SCHEMA.fields)})")
+        if isinstance(field, Section):  # only the fields given (the recipe has the rest)
+            Section(field.fields, partial=True).validate(vals, f"{where}.{sec}")
+        else:
+            field.validate(vals, f"{where}.{sec}")
+
+
+def validate_recipe(d, source: str = "recipe", overrides: dict | None = None, overrides_at: str | None = None) -> dict:
+    """Checked recipe with defaults filled in. `overrides` (same shape) are merged first; with
+    `overrides_at` (where they were written) each is checked there first."""
     if not isinstance(d, dict):
         raise RecipeError(f"{source}: must be a mapping of sections")
     d = copy.deepcopy(d)
+    if overrides is not None and overrides_at is not None:
+        check_overrides(overrides, overrides_at)
     if overrides is not None and not isinstance(overrides, dict):
         raise RecipeError(f"{source}: overrides: must be a mapping of sections")
     for sec, vals in (overrides or {}).items():
@@ -112,5 +130,5 @@ def validate_recipe(d, source: str = "recipe", overrides: dict | None = None) ->
     return out
 
 
-def load_recipe(path, overrides: dict | None = None) -> dict:
-    return validate_recipe(read_yaml(path), str(path), overrides)
+def load_recipe(path, overrides: dict | None = None, overrides_at: str | None = None) -> dict:
+    return validate_recipe(read_yaml(path), str(path), overrides, overrides_at)

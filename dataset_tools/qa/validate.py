@@ -181,7 +181,7 @@ def main(argv=None) -> int:
     for p in problems:
         print(p)
     if problems:
-        print(f"{len(problems)} problem(s)", file=sys.stderr)
+        print(f"{len(problems)} problem(s), the first: {problems[0]}", file=sys.stderr)
         return 1
     print(f"ok: {args.dataset}")
     return 0
