@@ -129,7 +129,7 @@ def test_stats_table_and_plots(tiny, tmp_path):
 
 def test_bad_dataset_gets_one_line(tmp_path):
     r = run("dataset_tools", "fuse", str(tmp_path / "nothing"))
-    assert r.returncode == 2 and r.stderr.strip() == f"error: {tmp_path / 'nothing' / 'manifest.jsonl'}: missing"
+    assert r.returncode == 2 and r.stderr.strip() == f"error: dataset: {tmp_path / 'nothing' / 'manifest.jsonl'}: missing (not a generated data set)"
     (tmp_path / "cfg.yaml").write_text("labels: {tau: -1}\n")
     r = run("dataset_tools", "fuse", str(tmp_path), "--config", str(tmp_path / "cfg.yaml"))
     assert r.returncode == 2 and "labels.tau: must be a number > 0" in r.stderr

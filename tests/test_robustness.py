@@ -390,8 +390,49 @@ def alive(pid: int) -> bool:
         return False
 
 
+def descendants(pid: int) -> list[int]:
+    out, todo = [], [pid]
+    while todo:
+        kids = children(todo.pop())
+        out += kids
+        todo += kids
+    return out
+
+
+def survivors_of_kill_9(p: subprocess.Popen, after_s: float = 1.0) -> list[str]:
+    """kill -9 of `p` alone (not its group); -> the processes it had started that are still alive
+    `after_s` seconds later (pid and command line)."""
+    import time
+
+    ours = descendants(p.pid)
+    assert p.poll() is None, "the command ended before it could be killed"
+    t0 = time.monotonic()
+    p.kill()
+    p.wait()
+    time.sleep(max(0.0, after_s - (time.monotonic() - t0)))
+    left = [q for q in ours if alive(q)]
+    names = []
+    for q in left:
+        with contextlib.suppress(OSError):
+            names.append(f"{q} {Path(f'/proc/{q}/cmdline').read_bytes()[:80]!r}")
+        with contextlib.suppress(OSError):
+            os.kill(q, signal.SIGKILL)  # do not leave them to the next test
+    return names
+
+
+def wait_until(cond, p: subprocess.Popen, timeout: float = 120, what: str = ""):
+    import time
+
+    deadline = time.time() + timeout
+    while not cond():
+        assert p.poll() is None, f"the command ended before {what}: {p.stderr.read()[-2000:] if p.stderr else ''}"
+        assert time.time() < deadline, f"timed out waiting for {what}"
+        time.sleep(0.05)
+
+
 def test_kill_9_of_generate_leaves_no_worker_writing(tmp_path, request):
-    """Only the driver is killed (not its process group): its Blender worker must die with it. (That
+    """Only the driver is killed (not its process group): its Blender worker must die with it, within
+    1 s (issue 25: common.lifetime). (That
     a killed run resumes to the same files is tests/test_scenes.py::test_killed_run_resumes_to_the_same_files.)"""
     import time
 
@@ -410,13 +451,11 @@ def test_kill_9_of_generate_leaves_no_worker_writing(tmp_path, request):
     while not list(out.glob("parking_lot/*/*")):  # kill while the worker is writing a frame
         assert time.time() < deadline
         time.sleep(0.05)
-    p.kill()
-    p.wait()
-    time.sleep(0.5)
+    assert workers and set(workers) <= set(descendants(p.pid))
+    assert not survivors_of_kill_9(p, 1.0), "a process of generate outlived it by 1 s"
     files = snapshot(out)
-    time.sleep(3)
+    time.sleep(2)
     assert snapshot(out) == files, "files changed after the driver was killed"
-    assert not [w for w in workers if alive(w)], "a Blender worker outlived its driver"
     from common.lock import hold_lock
 
     assert (out / ".lock").read_text().split()[0] == str(p.pid)  # left behind by the kill ...
@@ -451,3 +490,52 @@ def test_kill_during_checkpoint_save_leaves_no_temp_after_the_next_run(tmp_path,
     ckpt = torch.load(run / "latest.pt", map_location="cpu", weights_only=False)
     assert ckpt["step"] == 3 and ckpt["config"]["train"]["lr"] == 1e-5
     assert {g["lr"] for g in ckpt["optimizer"]["param_groups"]} == {1e-5}
+
+
+def test_kill_9_of_fuse_with_workers_leaves_no_process(tmp_path, tiny_dataset):
+    """Issue 25: `fuse --workers 2` killed with SIGKILL: its pool processes die with it (within 1 s)."""
+    ds = tmp_path / "ds"
+    shutil.copytree(tiny_dataset, ds)
+    p = subprocess.Popen([sys.executable, "-m", "dataset_tools", "fuse", str(ds), "--force", "--workers", "2", "--no-progress"],
+                         cwd=ROOT, env=dict(os.environ, PYTHONPATH=str(ROOT)), stderr=subprocess.PIPE)
+    wait_until(lambda: len(descendants(p.pid)) >= 2, p, what="its pool processes started")
+    assert not survivors_of_kill_9(p), "a fuse pool process outlived fuse by 1 s"
+
+
+def test_kill_9_of_train_with_loader_workers_leaves_no_process(tmp_path, mini_dataset, request):
+    """Issue 25: train.py with data.num_workers 2 killed with SIGKILL: its loader workers die with it."""
+    ctx = Ctx(tmp_path, mini_dataset, request)
+    cfg = ctx.train_config(data={"num_workers": 2}, train={"max_steps": 100000, "epochs": 100000})
+    p = subprocess.Popen([sys.executable, "train.py", "--config", str(cfg), "--out", str(tmp_path / "run"), "--quiet"],
+                         cwd=ROOT, env=dict(os.environ, PYTHONPATH=str(ROOT), OMP_NUM_THREADS="1"), stderr=subprocess.PIPE)
+    wait_until(lambda: len(descendants(p.pid)) >= 2, p, timeout=180, what="its loader workers started")
+    assert not survivors_of_kill_9(p), "a data loader worker outlived train.py by 1 s"
+
+
+@pytest.mark.parametrize("damage", ["zero-byte", "truncated", "other-size"])
+def test_resume_redoes_damaged_labels_with_one_notice(damage, tmp_path, mini_dataset):
+    """Issue 25: fuse without --force trusts no label it skips: a zero-byte, truncated or wrongly
+    sized label PNG is redone (with one notice line naming it); whole frames are left alone."""
+    import cv2
+
+    ds = tmp_path / "ds"
+    shutil.copytree(mini_dataset, ds)
+    frames = [ds / json.loads(line)["dir"] for line in (ds / "manifest.jsonl").read_text().splitlines()]
+    bad = frames[0] / "labels" / {"zero-byte": "semantic.png", "truncated": "instance.png", "other-size": "visibility.png"}[damage]
+    whole = bad.read_bytes()
+    if damage == "zero-byte":
+        bad.write_bytes(b"")
+    elif damage == "truncated":
+        bad.write_bytes(whole[: len(whole) // 2])
+    else:
+        a = cv2.imread(str(bad), cv2.IMREAD_UNCHANGED)
+        cv2.imwrite(str(bad), a[:-1])
+    untouched = {p: p.stat().st_mtime_ns for p in (frames[1] / "labels").iterdir()}
+    code, stderr = run_in_process("fuse", [str(ds), "--no-progress"])
+    lines = error_lines(stderr)
+    assert code == 0 and len(lines) == 1, stderr
+    assert "redoing 1 frame" in lines[0] and str(bad) in lines[0], lines[0]
+    assert bad.read_bytes() == whole
+    assert {p: p.stat().st_mtime_ns for p in (frames[1] / "labels").iterdir()} == untouched
+    code, stderr = run_in_process("fuse", [str(ds), "--no-progress"])  # now whole: nothing to say
+    assert code == 0 and error_lines(stderr) == [], stderr
