@@ -133,7 +133,7 @@ add("gen-fisheye-size-huge", "generate", gen(fisheye_size=[100000, 100000]), nee
 add("gen-fisheye-size-one", "generate", gen(fisheye_size=[64]), needles=("ds.yaml", "fisheye_size"))
 add("gen-frames-zero", "generate", gen(frames=0), needles=("ds.yaml", "frames"))
 add("gen-unknown-field", "generate", gen(colour="red"), needles=("ds.yaml", "colour"))
-add("gen-rig-missing", "generate", gen(rig="configs/rigs/nope.yaml"), needles=("ds.yaml", "rig"))
+add("gen-rig-missing", "generate", gen(rig="configs/rigs/nope.yaml"), needles=("ds.yaml", "rig", "nope.yaml", "missing"))
 add("gen-recipe-family", "generate", gen_recipe(family="motorway"), needles=("r.yaml", "family"))
 add("gen-recipe-seed-negative", "generate", gen_recipe(seed=-1), needles=("r.yaml", "seed"))
 add("gen-recipe-density-nan", "generate", gen_recipe(traffic={"density": float("nan")}), needles=("r.yaml", "traffic.density"))
@@ -362,6 +362,7 @@ add("contact-sheet-frame-negative", "contact_sheet", on_ds("--frame", "-1"), nee
 add("contact-sheet-png-garbage", "contact_sheet", on_ds(edit=png_garbage("cam_front.png")), needles=("cam_front.png",))
 add("validate-index-splits-list", "validate", on_ds(edit=index_json(INDEX_BAD[0][1])), code=1, needles=("problem",))
 add("validate-bad-flag", "validate", on_ds("--frobnicate"), needles=("--frobnicate",))
+add("validate-no-dataset", "validate", lambda ctx: [str(ctx.ws / "nothing")], code=1, needles=("dataset", "nothing", "missing"))
 
 # ------------------------------------------------------------------ train.py
 

@@ -91,7 +91,7 @@ def load_config(path, option: str = "--config") -> dict:
     cfg["name"] = cfg["name"] or SCHEMA.fields["name"].validate(path.stem, f"{path}: name")
     cfg["rig"] = str(resolve(cfg["rig"], path.parent))
     if not Path(cfg["rig"]).is_file():
-        raise ConfigError(f"{path}: rig: no such file {cfg['rig']}")
+        raise ConfigError(f"{path}: rig: {cfg['rig']}: missing")
     _check_rig(cfg["rig"], path)
     hold = cfg["hold_out"]
     scenes, names, blocks = [], set(), {}

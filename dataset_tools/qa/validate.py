@@ -153,7 +153,7 @@ def validate(root, labels: bool = True, progress: bool = True, audit_threshold: 
     root = Path(root)
     problems: list[str] = []
     if not root.is_dir():
-        return [f"{root}: not a directory"]
+        return [f"dataset: {root}: " + ("is a file, not a folder" if root.exists() else "missing")]
     entries = check_manifest(root, problems)
     n_classes = 5
     if labels:
