@@ -59,6 +59,7 @@ class SplitScores:
         k = len(self.class_names)
         cm, occ = confusion(pred, semantic, visibility, k), occlusion_confusion(occ_logit, visibility)
         self.overall.merge_(cm, occ)
+        self.overall.add_tolerance(pred, semantic, visibility)
         self.weather.setdefault(weather or "unknown", BevMetrics(self.class_names)).merge_(cm, occ)
         for mask, m in self.bands.values():
             m.merge_(confusion(pred[mask], semantic[mask], visibility[mask], k),
@@ -96,6 +97,9 @@ def markdown_table(results: dict, method: str) -> str:
                       "|" + "---|" * (1 + len(TABLE_COLUMNS))]
             for name, o in r[group].items():
                 lines.append(f"| {name} | " + " | ".join(_fmt(o.get(k)) for k, _ in TABLE_COLUMNS) + " |")
+    if any("iou_tol/lane_marking" in r["overall"] for r in results.values()):
+        lines += ["", "Markings, tolerance IoU (a marking predicted within one cell of a true one counts): "
+                  + ", ".join(f"{s} {_fmt(r['overall'].get('iou_tol/lane_marking'))}" for s, r in results.items())]
     lines += ["", "Inference: " + ", ".join(f"{s} {r['inference_ms_per_frame']:.1f} ms/frame" for s, r in results.items())]
     return "\n".join(lines) + "\n"
 
