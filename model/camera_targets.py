@@ -17,6 +17,7 @@ again. The target is the rendered pass at that fisheye pixel (dataset_tools.form
 from __future__ import annotations
 
 import math
+from functools import lru_cache
 
 import numpy as np
 
@@ -42,14 +43,20 @@ def _nearest(x: np.ndarray) -> np.ndarray:
     return np.floor(x + 0.5).astype(np.int64)
 
 
+@lru_cache(maxsize=8)
+def _feature_centres(input_size: tuple[int, int], s: int):
+    """(u, v, on_input) (h, w): each stride-s feature pixel's centre in the input image, and
+    whether it lies on the image rather than the encoder's padding."""
+    w_in, h_in = input_size
+    v, u = np.meshgrid(np.arange(math.ceil(h_in / s)) * s + (s - 1) / 2, np.arange(math.ceil(w_in / s)) * s + (s - 1) / 2,
+                       indexing="ij")
+    return u, v, (u <= w_in - 0.5) & (v <= h_in - 0.5)
+
+
 def source_pixels(frustum, rc, t, rect=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(row, col, valid) (h, w) of the rendered-image pixel each feature pixel of camera `rc`
     (a camera of frustum.rig: the fisheye, or its cylinder with `rect`) samples under view transform `t`."""
-    w_in, h_in = frustum.input_size
-    s = frustum.stride
-    v, u = np.meshgrid(np.arange(math.ceil(h_in / s)) * s + (s - 1) / 2, np.arange(math.ceil(w_in / s)) * s + (s - 1) / 2,
-                       indexing="ij")
-    on_input = (u <= w_in - 0.5) & (v <= h_in - 0.5)  # not on the encoder's padding
+    u, v, on_input = _feature_centres(tuple(frustum.input_size), frustum.stride)
     inv = np.linalg.inv(view_matrix(rc.camera, t))
     su = inv[0, 0] * u + inv[0, 1] * v + inv[0, 2]
     sv = inv[1, 0] * u + inv[1, 1] * v + inv[1, 2]
@@ -71,7 +78,7 @@ def feature_passes(frustum, rc, t, passes, rect=None) -> tuple[np.ndarray, np.nd
     each feature pixel; `passes` = (distance uint16 cm, semantic uint8) of the rendered image."""
     dist_cm, sem = passes
     row, col, ok = source_pixels(frustum, rc, t, rect)
-    d = np.where(ok & (dist_cm[row, col] != NO_HIT), decode_distance(dist_cm[row, col]), np.float32(np.nan))
+    d = decode_distance(np.where(ok, dist_cm[row, col], NO_HIT))
     return d, np.where(ok, sem[row, col].astype(np.int64), -1)
 
 
