@@ -302,3 +302,25 @@ def test_camera_losses_are_the_masked_cross_entropies():
     sem = torch.where(target >= 0, target, 0)  # classes 1..4 in 0..4, 0 invalid
     ce = torch.nn.functional.cross_entropy(logits[0, :, :4].permute(1, 0, 2, 3).reshape(4, -1).T, sem[0].reshape(-1) - 1, ignore_index=-1)
     assert torch.allclose(camera_semantic_loss(logits[:, :, :4], sem), ce / 2)
+
+
+def test_training_with_both_weights_runs_and_its_checkpoint_loads(tiny_dataset, tmp_path):
+    import subprocess
+    import sys
+
+    import yaml
+
+    from model import load_checkpoint
+
+    root = tmp_path / "ds"
+    shutil.copytree(tiny_dataset, root)
+    cfg = config(root, depth_weight=1.0, camera_seg_weight=0.5)
+    cfg["train"].update({"max_steps": 2, "threads": 1, "image_every": 0, "log_every": 1})
+    path = tmp_path / "c.yaml"
+    path.write_text(yaml.safe_dump(cfg))
+    r = subprocess.run([sys.executable, "train.py", "--config", str(path), "--out", str(tmp_path / "run"), "--quiet"],
+                       capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr[-2000:]
+    model, loaded, ckpt = load_checkpoint(tmp_path / "run" / "latest.pt")
+    assert ckpt["step"] == 2 and loaded["loss"]["depth_weight"] == 1.0 and model.camera_head is not None
+    assert len(list(root.glob(f"*/*/{CAMERA_TARGETS}"))) >= 4, "targets derived for the frames it trained on"
