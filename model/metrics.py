@@ -11,8 +11,8 @@ Tolerance IoU of lane markings (`iou_tol/lane_marking`, beside the strict one; n
 0.25 m cell is as wide as the paint, so a line predicted one cell off scores 0 strictly. Over the
 same scored cells: TP = predicted marking cells with a true marking cell in their 3x3
 neighbourhood, FP = the other predicted marking cells, FN = true marking cells with no predicted
-one in their 3x3 neighbourhood; IoU = TP / (TP + FP + FN). It equals the strict IoU when every
-prediction is exact or far off, and is never below it.
+one in their 3x3 neighbourhood; IoU = TP / (TP + FP + FN), never below the strict IoU (TP + FP is
+the predicted cells in both; TP can only grow and FN only shrink).
 """
 
 from __future__ import annotations
