@@ -33,6 +33,9 @@ def markdown_table(results: dict, method: str) -> str:
                       "|" + "---|" * (1 + len(TABLE_COLUMNS))]
             for name, o in r[group].items():
                 lines.append(f"| {name} | " + " | ".join(_fmt(o.get(k)) for k, _ in TABLE_COLUMNS) + " |")
+    if any("iou_tol/lane_marking" in r["overall"] for r in results.values()):
+        lines += ["", "Markings, tolerance IoU (a marking predicted within one cell of a true one counts): "
+                  + ", ".join(f"{s} {_fmt(r['overall'].get('iou_tol/lane_marking'))}" for s, r in results.items())]
     lines += ["", "Inference: " + ", ".join(f"{s} {r['inference_ms_per_frame']:.1f} ms/frame" for s, r in results.items())]
     return "\n".join(lines) + "\n"
 

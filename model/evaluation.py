@@ -71,7 +71,7 @@ def validation_scores(model, ds, cfg, device, rank: int = 0, world: int = 1) -> 
     n = len(ds) if not t["val_max_frames"] else min(len(ds), t["val_max_frames"])
     score(model, ds, metrics.update, range(n), max(1, t["batch_size"] // world), cfg["data"]["num_workers"], device, rank, world)
     if world > 1:
-        for m in (metrics.cm, metrics.occ):
+        for m in (metrics.cm, metrics.occ, metrics.tol):
             dist.all_reduce(m)
     return metrics.compute()
 
@@ -98,6 +98,7 @@ class SplitScores:
         k = len(self.class_names)
         cm, occ = confusion(pred, semantic, visibility, k), occlusion_confusion(occ_logit, visibility)
         self.overall.merge_(cm, occ)
+        self.overall.add_tolerance(pred, semantic, visibility)
         self.weather.setdefault(weather or "unknown", BevMetrics(self.class_names)).merge_(cm, occ)
         for mask, m in self.bands.values():
             m.merge_(confusion(pred[mask], semantic[mask], visibility[mask], k),

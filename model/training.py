@@ -199,6 +199,9 @@ def log_step(run: Run, loss, parts: dict, out: dict, batch: dict, samples_per_s:
         run.writer.add_scalar("train/loss", float(loss), run.step)
         run.writer.add_scalar("train/semantic", float(parts["semantic"]), run.step)
         run.writer.add_scalar("train/occlusion", float(parts["occlusion"]), run.step)
+        for k in ("depth", "camera_semantic"):  # present when their loss weight is > 0
+            if k in parts:
+                run.writer.add_scalar(f"train/{k}", float(parts[k]), run.step)
         run.writer.add_scalar("train/samples_per_s", samples_per_s, run.step)
     if t["image_every"] and run.step % t["image_every"] == 0:
         pred = decode(out).classes[0].cpu().numpy()
@@ -233,7 +236,7 @@ def train_one_epoch(run: Run, bar, alpha: torch.Tensor, max_steps: int | None) -
         batch = to_device(batch, run.device)
         out = forward(run.ddp, batch)
         loss, parts = total_loss(out, batch, alpha, loss_cfg["occlusion_weight"], loss_cfg["visibility_weighting"],
-                                 loss_cfg["occlusion_target"])
+                                 loss_cfg["occlusion_target"], loss_cfg["depth_weight"], loss_cfg["camera_seg_weight"])
         run.opt.zero_grad(set_to_none=True)
         loss.backward()
         if t["grad_clip"] > 0:
