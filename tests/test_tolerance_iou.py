@@ -5,6 +5,7 @@ import math
 import torch
 
 from model.metrics import BevMetrics, iou_from_confusion, confusion, iou_from_tolerance, tolerance_counts
+from model.predict import decode
 
 NAMES = ["invalid", "vehicle", "lane_marking", "street", "background"]
 MARK = 2
@@ -69,7 +70,7 @@ def test_bev_metrics_report_it_beside_the_strict_iou_over_a_batch():
     pred[1:11, 6] = MARK
     logits = torch.nn.functional.one_hot(torch.stack([pred, target]) - 1, 4).permute(0, 3, 1, 2).float()
     m = BevMetrics(NAMES)
-    m.update({"semantic": logits, "occlusion": torch.full((2, 12, 12), 3.0)},
+    m.update(decode({"semantic": logits, "occlusion": torch.full((2, 12, 12), 3.0)}),
              {"semantic": torch.stack([target, target]), "visibility": torch.stack([vis, vis])})
     res = m.compute()
     assert res["iou/lane_marking"] == 10 / 30  # the exact frame's 10 of 10 + 10 wrong + 10 missed
