@@ -12,6 +12,7 @@ Camera-view terms (issue 22, off by default): + depth_weight * the cross entropy
 depth bins against the bin the pixel's ray hits, + camera_seg_weight * the cross entropy of the
 camera-view semantic head (model.camera_targets); each a mean over a sample's valid feature pixels,
 then over samples. With both weights 0 they are not computed and the total is eq. 7's exactly.
+Dice (issue 22, off by default): + dice_weight * (1 - mean soft Dice over the classes), for thin classes.
 """
 
 from __future__ import annotations
@@ -53,6 +54,18 @@ def occlusion_loss(logits, visibility, target: str = "soft"):
     return F.binary_cross_entropy_with_logits(logits, t, reduction="none").mean((1, 2)).mean()
 
 
+def dice_loss(logits, target, visibility, use_visibility: bool = True):
+    """1 - the mean over classes 1..K of the soft Dice of the BEV softmax against the truth, over
+    the batch's valid cells (weighted by the true p(o)): a term that rewards overlap with thin,
+    rare classes (lane markings) that the cell-averaged cross entropy lets the model never predict."""
+    valid = (target > 0).to(logits)
+    w = valid * visibility if use_visibility else valid
+    p = F.softmax(logits, 1) * w[:, None]
+    y = F.one_hot((target - 1).clamp(min=0), logits.shape[1]).permute(0, 3, 1, 2).to(logits) * w[:, None]
+    inter, total = (p * y).sum((0, 2, 3)), (p + y).sum((0, 2, 3))
+    return 1 - ((2 * inter + 1.0) / (total + 1.0)).mean()
+
+
 def pixel_cross_entropy(logits, target, ignore: int):
     """logits (B, N, K, h, w); target (B, N, h, w) long, `ignore` where masked -> the mean over each
     sample's valid pixels, then over samples (a sample with none adds 0)."""
@@ -74,8 +87,8 @@ def camera_semantic_loss(logits, target):
 
 
 def total_loss(out: dict, batch: dict, alpha, lam: float = 1.0, use_visibility: bool = True, occ_target: str = "soft",
-               depth_weight: float = 0.0, camera_seg_weight: float = 0.0):
-    """-> (total, {'semantic': .., 'occlusion': .. [, 'depth': .., 'camera_semantic': ..]}) detached parts for logging."""
+               depth_weight: float = 0.0, camera_seg_weight: float = 0.0, dice_weight: float = 0.0):
+    """-> (total, {'semantic': .., 'occlusion': .. [, 'depth': .., 'camera_semantic': .., 'dice': ..]}) detached parts for logging."""
     sem = semantic_loss(out["semantic"], batch["semantic"], batch["visibility"], alpha, use_visibility)
     occ = occlusion_loss(out["occlusion"], batch["visibility"], occ_target)
     total, parts = sem + lam * occ, {"semantic": sem.detach(), "occlusion": occ.detach()}
@@ -85,4 +98,7 @@ def total_loss(out: dict, batch: dict, alpha, lam: float = 1.0, use_visibility: 
     if camera_seg_weight > 0:
         cam = camera_semantic_loss(out["camera_semantic"], batch["camera_semantic"])
         total, parts["camera_semantic"] = total + camera_seg_weight * cam, cam.detach()
+    if dice_weight > 0:
+        dice = dice_loss(out["semantic"], batch["semantic"], batch["visibility"], use_visibility)
+        total, parts["dice"] = total + dice_weight * dice, dice.detach()
     return total, parts
