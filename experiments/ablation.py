@@ -374,10 +374,16 @@ def main(argv=None) -> int:
     base_path = ROOT / SCALES[a.scale]
     out = output_dir(a.out)
     data_root = row_config(base_path, rows[0], 0, a.data, extra)["data"]["root"]  # a bad config fails here, before any training
-    from dataset_tools import DatasetIndex
+    from dataset_tools import TRAIN_CLASSES, DatasetIndex
 
-    index = DatasetIndex(data_root)
-    eval_splits = [s for s in EVAL_SPLITS if index.splits.get(s)]
+    try:
+        index = DatasetIndex(data_root)
+    except InputError:
+        if not a.report:
+            raise
+        index = None  # --report from finished rows alone: the data set may be gone
+    eval_splits = [s for s in EVAL_SPLITS if index.splits.get(s)] if index else []
+    class_names = index.class_names if index else list(TRAIN_CLASSES)
     t0 = time.perf_counter()
     results: dict[str, list[dict]] = {}
     seeds_of = {r: a.seeds if r in TABLE_I_ROWS else seeds2 for r in rows}
@@ -392,9 +398,9 @@ def main(argv=None) -> int:
         results.setdefault(row, []).append(run_row(base_path, row, seed, out, a.data, budget_s, a.steps, extra, a.quiet, eval_splits))
     if not results:
         raise AblationError(f"{out}: no finished rows to report")
-    meta = {"scale": a.scale, "config": SCALES[a.scale], "data": data_root, "class_names": index.class_names,
+    meta = {"scale": a.scale, "config": SCALES[a.scale], "data": data_root, "class_names": class_names,
             "seeds": a.seeds, "seeds_table2": seeds2, "steps": a.steps, "budget_minutes": a.budget_minutes, "rows": rows, "wall_seconds_this_call": time.perf_counter() - t0}
-    if "rectified" in rows:
+    if "rectified" in rows and index is not None:
         meta["rectification"] = rectification_report(row_config(base_path, "rectified", 0, a.data, extra))
     md, js = tables(results, meta)
     write_text_atomic(out / TABLES_MD, md)

@@ -2,7 +2,9 @@
 
     cms, occs = per_scene_arrays(split_result["scenes"])              # (S, K, K), (S, 2, 2)
     interval = scene_bootstrap(cms, occs, class_names)                 # key -> (low, high), 95 %
-    diff = paired_bootstrap((cms_a, occs_a), (cms_b, occs_b), names)   # key -> {diff, low, high}
+    diff = paired_bootstrap((cms_a, occs_a), (cms_b, occs_b), names)   # key -> {a, b, diff, low, high}
+    row = runs_bootstrap([(cms, occs), ...], names)                    # several seeds: {mean, low, high}
+    diff = paired_runs_bootstrap(runs_a, runs_b, names)                # seeds and scenes (the ablation)
 
 Frames of one scene are not independent (same layout, same weather, 2 s apart), so the unit that
 is resampled is the scene. A resample draws S scenes with replacement; its score is the protocol's

@@ -89,6 +89,11 @@ def test_every_row_trains_is_scored_and_lands_in_the_tables(tiny_with_test_split
     assert ablation.main(args[:1] + ["1"] + args[2:] + ["--report", "--seeds", "2"]) == 0
     assert len(json.loads((out / "tables.json").read_text())["table_2"]) == len(ablation.TABLE_II)
     assert not (out / "ours" / "seed1").exists()
+    # ... also when the data set is gone (the verdicts come from result.json alone)
+    shutil.move(tiny_with_test_splits, tmp_path / "gone")
+    (out / "tables.json").unlink()
+    assert ablation.main(args + ["--report"]) == 0
+    assert len(json.loads((out / "tables.json").read_text())["claims"]) == len(ablation.CLAIMS)
 
 
 def test_table_two_rows_can_have_fewer_seeds(tiny_with_test_splits, tmp_path):
