@@ -50,15 +50,19 @@ def bilinear(image: np.ndarray, uv: np.ndarray) -> np.ndarray:
     return top * (1 - dv) + bottom * dv
 
 
-def stitch(rig: Rig, images: dict, grid: BevGrid, height: float = 0.0):
-    """-> (bev (rows, cols, 3) uint8, source (rows, cols) int: index of the camera in rig order, -1
-    where none sees the cell). An image of another size than its camera is taken as a resize of it."""
+def stitch(rig: Rig, images: dict, grid: BevGrid, height: float = 0.0, nearest: bool = False):
+    """-> (bev (rows, cols, C) uint8, source (rows, cols) int: index of the camera in rig order, -1
+    where none sees the cell). An image of another size than its camera is taken as a resize of it.
+    `nearest`: take the nearest pixel (for label images: class ids, one channel or more)."""
     pts = ground_points(grid, height)
     best = np.full(grid.shape, np.inf)
     source = np.full(grid.shape, -1, dtype=np.int64)
-    bev = np.zeros(grid.shape + (3,), dtype=np.float64)
+    bev = None
     for i, rc in enumerate(rig):
         image = np.asarray(images[rc.name])
+        image = image[..., None] if image.ndim == 2 else image[..., :3]
+        if bev is None:
+            bev = np.zeros(grid.shape + image.shape[2:], dtype=np.float64)
         cam = rc.camera
         if image.shape[:2] != (cam.height, cam.width):
             rc = type(rc)(rc.name, cam.resized(image.shape[1], image.shape[0]), rc.cam_to_ego)
@@ -68,8 +72,13 @@ def stitch(rig: Rig, images: dict, grid: BevGrid, height: float = 0.0):
         take = valid & rc.camera.inside(uv) & (angle < best)
         best = np.where(take, angle, best)
         source = np.where(take, i, source)
-        bev[take] = bilinear(image[..., :3], uv[take])
-    return np.clip(np.rint(bev), 0, 255).astype(np.uint8), source
+        if nearest:
+            q = np.rint(uv[take]).astype(np.int64)
+            bev[take] = image[np.clip(q[:, 1], 0, image.shape[0] - 1), np.clip(q[:, 0], 0, image.shape[1] - 1)]
+        else:
+            bev[take] = bilinear(image, uv[take])
+    bev = np.clip(np.rint(bev), 0, 255).astype(np.uint8)
+    return (bev[..., 0] if bev.shape[-1] == 1 else bev), source
 
 
 def read_images(folder: Path, names) -> dict:
