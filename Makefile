@@ -60,13 +60,17 @@ train: setup
 eval: setup
 	$(PYTHON) eval.py --checkpoint $(RUN) --split $(SPLIT)
 
-# make ablation BUDGET=9 SEEDS=1 SCALE=cpu [DATA=data/small] [OUT=runs/ablation]: the paper's Tables I and II
-BUDGET ?= 9
+# make ablation [STEPS=420] [SEEDS=1] [SEEDS2=$(SEEDS)] [SCALE=cpu] [DATA=data/medium] [OUT=runs/ablation]: the paper's
+# Tables I and II with intervals and verdicts; every row the same optimiser steps (BUDGET=minutes: the same wall clock
+# instead); SEEDS for Table I's rows, SEEDS2 for the rows only in Table II
+STEPS ?= 420
+BUDGET ?=
 SEEDS ?= 1
+SEEDS2 ?= $(SEEDS)
 SCALE ?= cpu
 OUT ?= runs/ablation
 ablation: setup
-	$(PYTHON) -m experiments.ablation --budget-minutes $(BUDGET) --seeds $(SEEDS) --scale $(SCALE) --out $(OUT) $(if $(filter command line,$(origin DATA)),--data $(DATA))
+	$(PYTHON) -m experiments.ablation $(if $(BUDGET),--budget-minutes $(BUDGET),--steps $(STEPS)) --seeds $(SEEDS) --seeds-table2 $(SEEDS2) --scale $(SCALE) --out $(OUT) $(if $(filter command line,$(origin DATA)),--data $(DATA))
 
 demo: setup
 	$(PYTHON) demo.py

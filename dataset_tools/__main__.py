@@ -27,6 +27,8 @@ COMMANDS = {
     "validate": ("dataset_tools.qa.validate", "check every file of a data set (and its audit)"),
     "consistency": ("dataset_tools.qa.consistency", "fisheye semantic pixels vs fused labels, per class"),
     "stats": ("dataset_tools.qa.stats", "class frequencies, visibility, coverage"),
+    "export-woodscape": ("dataset_tools.export_woodscape", "export a data set in the WoodScape layout (images, calibration, semantic maps, polygons, 2D boxes)"),
+    "stitch": ("dataset_tools.stitch", "bird's-eye stitch of a rig's images (real or rendered) on the ground plane"),
 }
 ALIASES = {"contact-sheet": "contact_sheet"}
 

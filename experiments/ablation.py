@@ -1,21 +1,23 @@
 """The paper's Tables I and II on our data, as one resumable command.
 
-    python -m experiments.ablation --budget-minutes 9 --seeds 1 [--scale cpu|gpu] [--data DIR] [--out DIR]
-    python -m experiments.ablation --steps 400 --seeds 3 ...        # equal step budgets instead
+    python -m experiments.ablation --steps 420 --seeds 3 [--seeds-table2 2] [--scale cpu|gpu] [--data DIR] [--out DIR]
+    python -m experiments.ablation --budget-minutes 8 --seeds 1 ...   # equal wall-clock budgets instead
 
 Every row is the base config (`--scale cpu`: configs/train/cpu_default.yaml; `gpu`:
 configs/train/paper.yaml) with the paper's best settings (intrinsics-embedding pooling, uniform
 class weights, occlusion loss, the pretrained EfficientNet-Lite0 trunk) and one change. Each row and
-seed trains with `model.training` (what train.py runs) for the same wall-clock budget (or the same
-number of steps), from the same seed, then is scored with `model.evaluation` (eval.py's protocol) on
-the easy, medium and hard splits (and `heldout`, sampled scenes from seeds training never used,
-where the data set has one).
+seed trains with `model.training` (what train.py runs) for the same number of optimiser steps (or
+the same wall-clock budget), from the same seed, then is scored with `model.evaluation` (eval.py's
+protocol, one confusion matrix per scene kept) on the easy, medium and hard splits (and `heldout`,
+sampled scenes from seeds training never used, where the data set has one).
 
 Resumable: `<out>/<row>/seed<k>/` holds the run; `result.json` there marks it finished (never
-retrained; scored on an evaluation split the data set has gained since); a killed row resumes from
-its latest.pt and its recorded training time (`budget.json`).
-Writes `<out>/tables.md` and `<out>/tables.json` with the paper's numbers beside ours (mean and
-standard deviation over seeds when there are several).
+retrained; scored on an evaluation split the data set has gained since, or again where it lacks
+the per-scene matrices); a killed row resumes from its latest.pt and its recorded training time
+(`budget.json`).
+Writes `<out>/tables.md` and `<out>/tables.json` with the paper's numbers beside ours: the mean over
+seeds with its 95 % interval over seeds and scenes (model.bootstrap), and a verdict on each of the
+paper's claims (CLAIMS) from the paired difference's interval (`verdict`).
 """
 
 from __future__ import annotations
@@ -29,6 +31,7 @@ from common.cli import ArgumentParser, run_cli
 from common.errors import InputError
 from common.files import output_dir, read_json, write_json_atomic, write_text_atomic
 from common.schema import deep_merge
+from model.bootstrap import paired_runs_bootstrap, per_scene_arrays, runs_bootstrap
 from model.run_dir import RunDir
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -76,6 +79,18 @@ TABLE_II = [
 ]
 TABLE_I = [("LSS, cylindrically rectified", "rectified"), ("LSS-fisheye (ours), raw fisheye", "ours"),
            ("LSS-fisheye, raw fisheye, from-scratch trunk", "ours_scratch_trunk")]
+TABLE_I_ROWS = tuple(row for _, row in TABLE_I)  # --seeds; the other rows (Table II only): --seeds-table2
+# The paper's claims: (claim, [(better row, worse row)], the splits the paper shows it on). A claim is
+# reproduced where every pair's mIoU difference (better - worse) has an interval above 0 on every one
+# of those splits, contradicted where any is below 0; other splits are shown, not counted.
+CLAIMS = [
+    ("raw fisheye > cylindrically rectified (Table I, every split)", [("ours", "rectified")], ("easy", "medium", "hard")),
+    ("uniform class weights > 13-3-1-1 (Table II)", [("ours", "weights_13_3_1_1")], ("medium",)),
+    ("the occlusion loss helps (Table II, on 13-3-1-1)", [("weights_13_3_1_1", "weights_13_3_1_1_no_occlusion")], ("medium",)),
+    ("pooling: intrinsics + embedding > sensors per cell > weighted sum, sum > max (Table II)",
+     [("ours", "pool_sensors_per_cell"), ("pool_sensors_per_cell", "pool_weighted_sum"), ("pool_sum", "pool_max")], ("medium",)),
+]
+VERDICT_KEY = "miou"
 
 
 class AblationError(InputError):
@@ -104,8 +119,8 @@ def evaluate_row(run: RunDir, splits) -> dict:
 
 
 def _split_results(splits: dict) -> dict:
-    return {s: {"overall": r["overall"], "frames": r["frames"], "inference_ms_per_frame": r["inference_ms_per_frame"]}
-            for s, r in splits.items()}
+    return {s: {"overall": r["overall"], "frames": r["frames"], "inference_ms_per_frame": r["inference_ms_per_frame"],
+                "scenes": r["scenes"]} for s, r in splits.items()}
 
 
 def run_row(base_path, row, seed, out: Path, data, budget_s, steps, extra, quiet, eval_splits) -> dict:
@@ -116,9 +131,10 @@ def run_row(base_path, row, seed, out: Path, data, budget_s, steps, extra, quiet
     done = run.result
     if done.is_file():
         result = read_json(done, AblationError)
-        missing = [s for s in eval_splits if s not in result["splits"]]
+        # a split added to the data set later, or one scored before per-scene matrices were kept: scored, not retrained
+        missing = [s for s in eval_splits if "scenes" not in result["splits"].get(s, {})]
         if missing and run.latest.is_file():
-            result["splits"].update(_split_results(evaluate_row(run, missing)))  # a split added to the data set later: scored, not retrained
+            result["splits"].update(_split_results(evaluate_row(run, missing)))
             write_json_atomic(done, result)
         return result
     run.root.mkdir(parents=True, exist_ok=True)
@@ -164,44 +180,118 @@ def rectification_report(cfg: dict, frames: int = 12) -> dict:
 # ----------------------------------------------------------------- tables
 
 
-def summarise(results: list[dict], split: str) -> dict:
-    """Column key -> (mean, std, n) over seeds."""
+def verdict(low: float, high: float) -> str:
+    """The paired difference's interval (better - worse, in the paper's direction) -> reproduced
+    (above 0), contradicted (below 0) or undecided (contains 0, or unknown)."""
+    if low > 0:
+        return "reproduced"
+    if high < 0:
+        return "contradicted"
+    return "undecided"
+
+
+def combine(verdicts) -> str:
+    """One claim over several pairs or splits: reproduced only where every part is, contradicted
+    where any part is, else undecided (also when there is no part)."""
+    verdicts = list(verdicts)
+    if verdicts and all(v == "reproduced" for v in verdicts):
+        return "reproduced"
+    return "contradicted" if "contradicted" in verdicts else "undecided"
+
+
+def detectable(low: float, high: float) -> float:
+    """The smallest difference this run could tell from 0: the half-width of the paired interval."""
+    return (high - low) / 2
+
+
+def _runs(results: list[dict], split: str):
+    """The (cms, occs) per seed of one row on `split`, or None where a seed lacks per-scene matrices
+    or the seeds were scored on different scenes."""
+    have = [r["splits"][split] for r in results if split in r["splits"]]
+    if not have or any("scenes" not in h for h in have) or len({tuple(sorted(h["scenes"])) for h in have}) != 1:
+        return None
+    return [per_scene_arrays(h["scenes"]) for h in have]
+
+
+def summarise(results: list[dict], split: str, class_names) -> dict:
+    """Column key -> {"mean", "std" (over seeds; None for one), "seeds", "low", "high" (95 % over
+    seeds and scenes; None without per-scene matrices), "scenes"}, or None where no seed has it."""
+    runs = _runs(results, split)
+    iv = runs_bootstrap(runs, class_names) if runs else {}
     out = {}
     for key, _ in COLUMNS:
         vals = [r["splits"][split]["overall"].get(key) for r in results if split in r["splits"]]
         vals = [v for v in vals if v is not None and v == v]
-        out[key] = (float(np.mean(vals)), float(np.std(vals, ddof=1)) if len(vals) > 1 else None, len(vals)) if vals else None
+        if not vals:
+            out[key] = None
+            continue
+        low, high = (iv[key]["low"], iv[key]["high"]) if key in iv else (None, None)
+        out[key] = {"mean": float(np.mean(vals)), "std": float(np.std(vals, ddof=1)) if len(vals) > 1 else None,
+                    "seeds": len(vals), "low": low, "high": high, "scenes": len(runs[0][0]) if runs else None}
+    return out
+
+
+def claims(results: dict[str, list[dict]], class_names) -> list[dict]:
+    """Every claim of CLAIMS with its parts (pair and split: the mIoU difference better - worse,
+    its paired 95 % interval over seeds and scenes, the smallest detectable difference, the verdict)
+    and its verdict on the paper's splits. Pairs or splits without per-scene scores are left out."""
+    out = []
+    for claim, pairs, paper_splits in CLAIMS:
+        parts = []
+        for better, worse in pairs:
+            for split in EVAL_SPLITS:
+                ra, rb = (_runs(results.get(r, []), split) for r in (better, worse))
+                if not ra or not rb or ra[0][0].shape != rb[0][0].shape:
+                    continue
+                d = paired_runs_bootstrap(ra, rb, class_names)[VERDICT_KEY]
+                parts.append({"better": better, "worse": worse, "split": split, "paper_split": split in paper_splits,
+                              "seeds": [len(ra), len(rb)], "scenes": len(ra[0][0]), **d,
+                              "detectable": detectable(d["low"], d["high"]), "verdict": verdict(d["low"], d["high"])})
+        counted = [p["verdict"] for p in parts if p["paper_split"]]
+        complete = len(counted) == len(pairs) * len(paper_splits)
+        v = combine(counted) if complete or "contradicted" in counted else "undecided"
+        out.append({"claim": claim, "splits": list(paper_splits), "verdict": v, "complete": complete, "parts": parts})
     return out
 
 
 def _cell(s) -> str:
     if s is None:
         return "-"
-    mean, std, _ = s
-    return f"{mean:.3f}" if std is None else f"{mean:.3f} ± {std:.3f}"
+    if s["low"] is not None and s["low"] == s["low"]:
+        return f"{s['mean']:.3f} [{s['low']:.3f}, {s['high']:.3f}]"
+    return f"{s['mean']:.3f}" if s["std"] is None else f"{s['mean']:.3f} ± {s['std']:.3f}"
 
 
 def _paper(v) -> str:
     return "-" if v is None else f"{v:.3f}"
 
 
+def _signed(v) -> str:
+    return "-" if v is None or v != v else f"{v:+.3f}"
+
+
+def _budget(meta: dict) -> str:
+    return f"{meta['steps']} steps per row" if meta.get("steps") else f"{meta['budget_minutes']:g} min of training per row"
+
+
 def tables(results: dict[str, list[dict]], meta: dict) -> tuple[str, dict]:
     heads = [t for _, t in COLUMNS]
+    names = meta["class_names"]
     lines = ["# Tables I and II on our data", "",
-             f"Scale `{meta['scale']}`, data `{meta['data']}`, seeds {meta['seeds']}, "
-             + (f"{meta['steps']} steps per row" if meta["steps"] else f"{meta['budget_minutes']:g} min of training per row")
-             + ". Ours: mean ± standard deviation over seeds (one seed: no spread); paper: DaF-BEVSeg.", "",
+             f"Scale `{meta['scale']}`, data `{meta['data']}`, seeds {meta['seeds']} (Table I rows; other rows "
+             f"{meta.get('seeds_table2', meta['seeds'])}), {_budget(meta)}. Ours: the mean over seeds [its 95 % interval "
+             "from a bootstrap over seeds and scenes]; paper: DaF-BEVSeg.", "",
              "## Table I: raw fisheye against cylindrical rectification", "",
              "| Method | Dataset | " + " | ".join(f"{h} (ours) | {h} (paper)" for h in heads) + " |",
              "|---|---|" + "---|---|" * len(heads)]
-    js = {"meta": meta, "table_1": [], "table_2": [], "runs": results}
+    js = {"meta": meta, "table_1": [], "table_2": [], "claims": [], "runs": results}
     for label, row in TABLE_I:
         if row not in results:
             continue
         for split in EVAL_SPLITS:
             if not any(split in r["splits"] for r in results[row]):
                 continue
-            s = summarise(results[row], split)
+            s = summarise(results[row], split, names)
             paper = PAPER_TABLE_I.get((row, split), [None] * len(COLUMNS))
             lines.append(f"| {label} | {split} | " + " | ".join(f"{_cell(s[k])} | {_paper(p)}" for (k, _), p in zip(COLUMNS, paper)) + " |")
             js["table_1"].append({"method": label, "row": row, "split": split, "ours": s, "paper": dict(zip([k for k, _ in COLUMNS], paper))})
@@ -209,11 +299,28 @@ def tables(results: dict[str, list[dict]], meta: dict) -> tuple[str, dict]:
               "| Ablation | Setting | " + " | ".join(f"{h} (ours) | {h} (paper)" for h in heads) + " |",
               "|---|---|" + "---|---|" * len(heads)]
     for section, label, row, paper in TABLE_II:
-        if row not in results:
+        if row not in results or not any("medium" in r["splits"] for r in results[row]):
             continue
-        s = summarise(results[row], "medium")
+        s = summarise(results[row], "medium", names)
         lines.append(f"| {section} | {label} | " + " | ".join(f"{_cell(s[k])} | {_paper(p)}" for (k, _), p in zip(COLUMNS, paper)) + " |")
         js["table_2"].append({"section": section, "setting": label, "row": row, "ours": s, "paper": dict(zip([k for k, _ in COLUMNS], paper))})
+    js["claims"] = claims(results, names)
+    lines += ["", "## Verdicts on the paper's claims", "",
+              "Per claim, the mIoU difference (paper's better row minus worse row, mean over seeds), its 95 % interval "
+              "from a bootstrap over seeds and scenes with the scenes paired, and the smallest difference this run "
+              "could have detected (the interval's half-width). **reproduced**: the interval is above 0; "
+              "**contradicted**: below 0; **undecided**: it contains 0. The claim's verdict counts the paper's "
+              "splits (marked *); the others are shown for information.", "",
+              "| Claim | Verdict |", "|---|---|"]
+    for c in js["claims"]:
+        lines.append(f"| {c['claim']} | **{c['verdict']}**" + ("" if c["complete"] else " (rows or splits missing)") + " |")
+    lines += ["", "| Claim | Better - worse | Split | Seeds | Scenes | Difference | 95 % interval | Smallest detectable | Verdict |",
+              "|---|---|---|---|---|---|---|---|---|"]
+    for c in js["claims"]:
+        for p in c["parts"]:
+            lines.append(f"| {c['claim'].split(' (')[0]} | {p['better']} - {p['worse']} | {p['split']}{'*' if p['paper_split'] else ''} | "
+                         f"{p['seeds'][0]}, {p['seeds'][1]} | {p['scenes']} | {_signed(p['diff'])} | "
+                         f"[{_signed(p['low'])}, {_signed(p['high'])}] | {p['detectable']:.3f} | {p['verdict']} |")
     r = meta.get("rectification")
     if r:
         px = ", ".join(f"{n} {100 * v:.1f}%" for n, v in r["lost_fisheye_pixels"].items())
@@ -236,9 +343,10 @@ def main(argv=None) -> int:
 
     p = ArgumentParser(prog="experiments.ablation", description="Train and score every row of the paper's Tables I and II.")
     g = p.add_mutually_exclusive_group(required=True)
-    g.add_argument("--budget-minutes", type=float, help="training wall-clock minutes per row and seed")
-    g.add_argument("--steps", type=int, help="training steps per row and seed (instead of a time budget)")
+    g.add_argument("--steps", type=int, help="optimiser steps per row and seed: every row learns from the same number of batches (make ablation's default)")
+    g.add_argument("--budget-minutes", type=float, help="training wall-clock minutes per row and seed instead (depends on the machine's load)")
     p.add_argument("--seeds", type=int, default=1, help="seeds 0..S-1 per row (default 1)")
+    p.add_argument("--seeds-table2", type=int, help="seeds for the rows only in Table II (default: --seeds; Table I's rows always get --seeds)")
     p.add_argument("--scale", choices=sorted(SCALES), default="cpu", help="cpu: cpu_default sizes; gpu: the paper's (configs/train/paper.yaml)")
     p.add_argument("--data", help="data set root (default: the scale config's data.root)")
     p.add_argument("--out", default="runs/ablation", help="output folder (default runs/ablation)")
@@ -253,6 +361,9 @@ def main(argv=None) -> int:
         raise AblationError(f"--steps: must be >= 1, got {a.steps}")
     if a.seeds < 1:
         raise AblationError(f"--seeds: must be >= 1, got {a.seeds}")
+    seeds2 = a.seeds if a.seeds_table2 is None else a.seeds_table2
+    if seeds2 < 1:
+        raise AblationError(f"--seeds-table2: must be >= 1, got {seeds2}")
     rows = list(ROWS) if not a.rows else [r.strip() for r in a.rows.split(",") if r.strip()]
     unknown = [r for r in rows if r not in ROWS]
     if unknown:
@@ -263,14 +374,20 @@ def main(argv=None) -> int:
     base_path = ROOT / SCALES[a.scale]
     out = output_dir(a.out)
     data_root = row_config(base_path, rows[0], 0, a.data, extra)["data"]["root"]  # a bad config fails here, before any training
-    if not a.report:
-        from dataset_tools import DatasetIndex
+    from dataset_tools import TRAIN_CLASSES, DatasetIndex
 
-        have = DatasetIndex(data_root).splits
-        eval_splits = [s for s in EVAL_SPLITS if have.get(s)]
+    try:
+        index = DatasetIndex(data_root)
+    except InputError:
+        if not a.report:
+            raise
+        index = None  # --report from finished rows alone: the data set may be gone
+    eval_splits = [s for s in EVAL_SPLITS if index.splits.get(s)] if index else []
+    class_names = index.class_names if index else list(TRAIN_CLASSES)
     t0 = time.perf_counter()
     results: dict[str, list[dict]] = {}
-    jobs = [(r, s) for s in range(a.seeds) for r in rows]
+    seeds_of = {r: a.seeds if r in TABLE_I_ROWS else seeds2 for r in rows}
+    jobs = [(r, s) for s in range(max(seeds_of.values())) for r in rows if s < seeds_of[r]]  # seed 0 of every row first
     budget_s = None if a.budget_minutes is None else 60 * a.budget_minutes
     for row, seed in tqdm(jobs, desc="ablation rows", dynamic_ncols=True, disable=a.quiet or a.report):
         if a.report:
@@ -281,9 +398,9 @@ def main(argv=None) -> int:
         results.setdefault(row, []).append(run_row(base_path, row, seed, out, a.data, budget_s, a.steps, extra, a.quiet, eval_splits))
     if not results:
         raise AblationError(f"{out}: no finished rows to report")
-    meta = {"scale": a.scale, "config": SCALES[a.scale], "data": data_root,
-            "seeds": a.seeds, "steps": a.steps, "budget_minutes": a.budget_minutes, "rows": rows, "wall_seconds_this_call": time.perf_counter() - t0}
-    if "rectified" in rows:
+    meta = {"scale": a.scale, "config": SCALES[a.scale], "data": data_root, "class_names": class_names,
+            "seeds": a.seeds, "seeds_table2": seeds2, "steps": a.steps, "budget_minutes": a.budget_minutes, "rows": rows, "wall_seconds_this_call": time.perf_counter() - t0}
+    if "rectified" in rows and index is not None:
         meta["rectification"] = rectification_report(row_config(base_path, "rectified", 0, a.data, extra))
     md, js = tables(results, meta)
     write_text_atomic(out / TABLES_MD, md)

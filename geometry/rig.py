@@ -261,11 +261,15 @@ def _read_mapping(path: Path):
 
 
 def load_rig(path) -> Rig:
-    """A rig from a YAML/JSON rig file, or from a WoodScape calibration JSON (one camera)."""
+    """A rig from a YAML/JSON rig file (cameras given inline, or as calibration files of other tools:
+    `calibration:`), or from a WoodScape calibration JSON (one camera)."""
     path = Path(path)
     d = _read_mapping(path)
     if isinstance(d, dict) and "intrinsic" in d and "extrinsic" in d:
         return Rig([woodscape_camera(d, str(path))])
+    if isinstance(d, dict) and isinstance(d.get("cameras"), dict) and any(
+            isinstance(c, dict) and "calibration" in c for c in d["cameras"].values()):
+        return assemble_rig(d, path)
     return rig_from_dict(d, str(path))
 
 
@@ -309,3 +313,56 @@ def woodscape_camera(d: dict, source: str = "woodscape") -> RigCamera:
     except CameraError as exc:
         raise RigError(f"{source}: intrinsic: {exc}") from None
     return RigCamera(str(d.get("name", "camera")), camera, _extrinsics(e, source))
+
+
+# ---------------------------------------------------------------- rigs of calibration files
+
+
+ASSEMBLY_KEYS = {"calibration", "format", "camera", "extrinsics"}
+
+
+def assemble_rig(d: dict, path) -> Rig:
+    """A rig file whose cameras name calibration files of other tools (docs/geometry.md, "Your own rig")::
+
+        name: my_car
+        reference_to_vehicle: {translation: [...], rotation: {...}}   # the files' own frame (Kalibr's IMU)
+        cameras:
+          front: {calibration: front.yaml, format: opencv_fisheye, extrinsics: {translation: ..., rotation: ...}}
+          cam1:  {calibration: camchain.yaml, camera: cam1}            # pose from the file
+
+    Paths are relative to the rig file. A camera's `extrinsics` (camera -> vehicle) win; without them
+    the pose the file holds is used: Kalibr's (T_cam_imu inverted, or the T_cn_cnm1 chain from cam0)
+    taken to the vehicle frame by `reference_to_vehicle` (default identity); WoodScape's, already in
+    the vehicle frame. Cameras may mix formats and inline `intrinsics`."""
+    from .calib_import import CalibrationError, import_calibration
+
+    path = Path(path)
+    ref = _extrinsics(d["reference_to_vehicle"], f"{path}: reference_to_vehicle") if "reference_to_vehicle" in d else np.eye(4)
+    cams = []
+    for name, c in d["cameras"].items():
+        where = f"{path}: cameras.{name}"
+        if not isinstance(c, dict) or "calibration" not in c:
+            cams.extend(rig_from_dict({"cameras": {name: c}}, str(path)))
+            continue
+        unknown = set(c) - ASSEMBLY_KEYS
+        if unknown:
+            raise RigError(f"{where}: unknown key '{sorted(unknown)[0]}' (keys: {', '.join(sorted(ASSEMBLY_KEYS))})")
+        file = path.parent / str(c["calibration"])
+        try:
+            if c.get("format") == "woodscape" or (c.get("format") is None and file.suffix == ".json"
+                                                   and "intrinsic" in (_read_mapping(file) or {})):
+                rc = woodscape_camera(_read_mapping(file), str(file))
+                camera, pose = rc.camera, np.linalg.inv(ref) @ rc.cam_to_ego  # already in the vehicle frame
+            else:
+                imp = import_calibration(file, c.get("format"), c.get("camera"))
+                camera, pose = imp.camera, imp.cam_to_ref
+        except CalibrationError as exc:
+            raise RigError(f"{where}.calibration: {exc}") from None
+        if "extrinsics" in c:
+            cam_to_ego = _extrinsics(c["extrinsics"], where)
+        elif pose is not None:
+            cam_to_ego = ref @ pose
+        else:
+            raise RigError(f"{where}: needs 'extrinsics' ({file.name} holds no pose)")
+        cams.append(RigCamera(str(name), camera, cam_to_ego))
+    return Rig(cams, str(d.get("name", path.stem)))

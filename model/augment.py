@@ -88,6 +88,19 @@ def transform_camera(rc: RigCamera, t: ViewTransform) -> RigCamera:
     return RigCamera(rc.name, cam.cropped(t.x0, t.y0, *t.size), cam_to_ego)
 
 
+def view_matrix(camera, t: ViewTransform) -> np.ndarray:
+    """3x3 affine map of pixel positions, `camera`'s image -> the transformed image (what
+    warp_image applies): scale u' = s (u + 0.5) - 0.5, rotation about the scaled principal point, crop."""
+    s = t.scale
+    a = np.array([[s, 0.0, (s - 1) * 0.5], [0.0, s, (s - 1) * 0.5], [0.0, 0.0, 1.0]])
+    if t.angle:
+        cs = camera.scaled(s)
+        a = np.vstack([cv2.getRotationMatrix2D((cs.cx, cs.cy), t.angle, 1.0), [0, 0, 1]]) @ a
+    a[0, 2] -= t.x0
+    a[1, 2] -= t.y0
+    return a
+
+
 def warp_image(image: np.ndarray, camera, t: ViewTransform) -> np.ndarray:
     """(H, W, 3) uint8 image of `camera` -> the transformed (t.size) image."""
     s = t.scale

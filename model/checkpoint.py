@@ -28,7 +28,7 @@ def build_model(cfg: dict, rig: Rig, num_classes: int = NUM_CLASSES):
     from .lss import LSSFisheye
     from .rectified import model_rig
 
-    return LSSFisheye(cfg["model"], Frustum(model_rig(rig, cfg), cfg), num_classes)
+    return LSSFisheye(cfg["model"], Frustum(model_rig(rig, cfg), cfg), num_classes, cfg["loss"]["camera_seg_weight"] > 0)
 
 
 def save_checkpoint(path, state: dict) -> None:

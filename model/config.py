@@ -86,12 +86,18 @@ SCHEMA = Section({
         "visibility_weighting": Bool(default=True),
         "occlusion_weight": Num(0.0, 1e6, default=1.0),
         "occlusion_target": Str(choices=("soft", "binary"), default="soft"),
+        # camera-view supervision from the rendered passes (model.camera_targets); 0: off
+        "depth_weight": Num(0.0, 1e6, default=0.0),  # cross entropy of the lift's depth bins
+        "camera_seg_weight": Num(0.0, 1e6, default=0.0),  # a 1x1 head on the context features, training only
+        "dice_weight": Num(0.0, 1e6, default=0.0),  # soft Dice over the BEV classes (thin classes); 0: off
     }),
     "train": Section({
         "epochs": Num(1, 10**6, integer=True, default=120),
         "max_steps": Num(0, 10**9, integer=True, default=0),  # 0: no limit
         "batch_size": Num(1, 4096, integer=True, default=4),  # global: split across DDP processes
         "lr": Num(above=0, hi=10.0, default=1e-3),
+        "lr_schedule": Str(choices=("constant", "cosine"), default="constant"),  # cosine: decays to 0 at the last step
+        "warmup_steps": Num(0, 10**9, integer=True, default=0),  # linear warm-up from 0; 0: none
         "weight_decay": Num(0.0, 10.0, default=0.0),
         "grad_clip": Num(0.0, 1e6, default=5.0),
         "seed": Num(0, 2**31 - 1, integer=True, default=0),

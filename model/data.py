@@ -18,11 +18,13 @@ import torch
 from torch.utils.data import Dataset
 
 from common.errors import InputError
+from dataset_tools.format.camera_targets import camera_targets as read_camera_passes
 from dataset_tools.format.layout import INDEX, FrameFiles
 from dataset_tools.format.reader import DatasetIndex, downsample_labels, read_frame, rig_of_frame
 from geometry.bev import BevGrid
 
 from .augment import ColorJitter, random_transform, warp_image
+from .camera_targets import camera_targets, train_lut
 from .frustum import Frustum
 from .rectified import rectifier
 
@@ -59,6 +61,10 @@ class BevDataset(Dataset):
         self.jitter = ColorJitter(**a["color_jitter"]) if self.augment else None
         self.epoch = 0
         self.carry_geometry = any(r.own_rig for r in self.refs)
+        # camera-view targets (depth bins, classes) only when a loss uses them, and only for training
+        loss = cfg["loss"]
+        self.camera_targets = train and (loss["depth_weight"] > 0 or loss["camera_seg_weight"] > 0)
+        self.lut = train_lut(self.class_names)
         self._frusta: dict = {}  # scene -> (Frustum, rectifier) of its own rig (a scene keeps one rig)
 
     def geometry_of(self, ref, meta: dict):
@@ -75,6 +81,16 @@ class BevDataset(Dataset):
             rect = rectifier(fisheye, self.cfg)
             self._frusta[ref.scene] = (Frustum(rect.rig if rect else fisheye, self.cfg), rect)
         return self._frusta[ref.scene]
+
+    def targets_of(self, ref, frustum, transforms, rectify) -> tuple[torch.Tensor, torch.Tensor]:
+        """(depth bin (N, h, w), training class (N, h, w)) of what each feature pixel's ray hits."""
+        passes = read_camera_passes(ref.dir, self.names)
+        for n, (dist, _) in passes.items():
+            src = self.index.rig[n].camera
+            if dist.shape != (src.height, src.width):
+                raise DataError(f"{FrameFiles(ref.dir).camera_exr(n)}: size {dist.shape[1]}x{dist.shape[0]}, rig says {src.width}x{src.height}")
+        depth, semantic = camera_targets(frustum, transforms, passes, self.lut, rectify)
+        return torch.from_numpy(depth), torch.from_numpy(semantic)
 
     def set_epoch(self, epoch: int) -> None:
         self.epoch = int(epoch)
@@ -110,6 +126,8 @@ class BevDataset(Dataset):
             with torch.random.fork_rng(devices=[]):
                 torch.manual_seed(seed)
                 images = self.jitter(images)
+        if self.camera_targets:
+            sample["depth_target"], sample["camera_semantic"] = self.targets_of(ref, frustum, transforms, rectify)
         sem, vis = f["semantic"], f["visibility"]
         if self.factor > 1:
             sem, vis = downsample_labels(sem, vis, self.factor, priority=self.priority, num_classes=len(self.class_names))

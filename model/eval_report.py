@@ -1,5 +1,6 @@
-"""eval.py's outputs drawn from its scores: the Markdown table laid out as the paper's Table I,
-the confusion-matrix picture and the per-frame pictures as the paper's Figs. 6-8."""
+"""eval.py's outputs drawn from its scores: the Markdown table laid out as the paper's Table I
+(each figure with its 95 % interval over scenes), the comparison table of eval.py --compare, the
+confusion-matrix picture and the per-frame pictures as the paper's Figs. 6-8."""
 
 from __future__ import annotations
 
@@ -18,12 +19,21 @@ def _fmt(v) -> str:
     return "-" if v is None or v != v else f"{v:.3f}"  # NaN (class absent from truth and prediction) -> "-"
 
 
+def _fmt_interval(v, iv) -> str:
+    """`0.462 [0.431, 0.490]`: a figure and its interval (the figure alone where there is none)."""
+    if not iv or v is None or v != v or iv[0] != iv[0]:
+        return _fmt(v)
+    return f"{v:.3f} [{iv[0]:.3f}, {iv[1]:.3f}]"
+
+
 def markdown_table(results: dict, method: str) -> str:
-    head = "| Method | Image type | Dataset | " + " | ".join(t for _, t in TABLE_COLUMNS) + " |"
-    lines = [head, "|" + "---|" * (3 + len(TABLE_COLUMNS))]
+    head = "| Method | Image type | Dataset | Scenes | " + " | ".join(t for _, t in TABLE_COLUMNS) + " |"
+    lines = [head, "|" + "---|" * (4 + len(TABLE_COLUMNS))]
     for split, r in results.items():
-        o = r["overall"]
-        lines.append(f"| {method} | Raw distorted | {split} | " + " | ".join(_fmt(o.get(k)) for k, _ in TABLE_COLUMNS) + " |")
+        o, iv = r["overall"], r.get("interval", {})
+        lines.append(f"| {method} | Raw distorted | {split} | {len(r.get('scenes', {})) or '-'} | "
+                     + " | ".join(_fmt_interval(o.get(k), iv.get(k)) for k, _ in TABLE_COLUMNS) + " |")
+    lines += ["", "[low, high]: the 95 % interval of a bootstrap over the split's scenes (docs/evaluation.md)."]
     for split, r in results.items():
         for group in ("bands", "weather"):
             if len(r[group]) < 2:
@@ -33,8 +43,35 @@ def markdown_table(results: dict, method: str) -> str:
                       "|" + "---|" * (1 + len(TABLE_COLUMNS))]
             for name, o in r[group].items():
                 lines.append(f"| {name} | " + " | ".join(_fmt(o.get(k)) for k, _ in TABLE_COLUMNS) + " |")
+    if any("iou_tol/lane_marking" in r["overall"] for r in results.values()):
+        lines += ["", "Markings, tolerance IoU (a marking predicted within one cell of a true one counts): "
+                  + ", ".join(f"{s} {_fmt(r['overall'].get('iou_tol/lane_marking'))}" for s, r in results.items())]
     lines += ["", "Inference: " + ", ".join(f"{s} {r['inference_ms_per_frame']:.1f} ms/frame" for s, r in results.items())]
     return "\n".join(lines) + "\n"
+
+
+def comparison_table(report: dict) -> str:
+    """eval.py --compare's table: per split, each score of A and of B and A - B with its paired 95 %
+    interval over scenes, and which is better where the interval excludes 0."""
+    lines = [f"A: {report['a']['checkpoint']} (step {report['a']['step']})",
+             f"B: {report['b']['checkpoint']} (step {report['b']['step']})", "",
+             "| Dataset | Scenes | Score | A | B | A - B | 95 % interval | |", "|---|---|---|---|---|---|---|---|"]
+    for split, r in report["splits"].items():
+        for key, title in TABLE_COLUMNS:
+            d = r["difference"].get(key)
+            if d is None:
+                continue
+            better = "A better" if d["low"] > 0 else "B better" if d["high"] < 0 else "undecided"
+            if d["low"] != d["low"]:
+                better = "-"
+            lines.append(f"| {split} | {r['scenes']} | {title} | {_fmt(d['a'])} | {_fmt(d['b'])} | {_signed(d['diff'])} | "
+                         f"[{_signed(d['low'])}, {_signed(d['high'])}] | {better} |")
+    lines += ["", f"Paired bootstrap over scenes ({report['resamples']} resamples; docs/evaluation.md)."]
+    return "\n".join(lines) + "\n"
+
+
+def _signed(v) -> str:
+    return "-" if v is None or v != v else f"{v:+.3f}"
 
 
 def frame_picture(path: Path, images: dict, truth, vis, pred, pred_vis, class_names, title: str):

@@ -4,7 +4,9 @@ eval.py (`evaluate_checkpoint`) and the ablation (`open_checkpoint` + `evaluate_
 The protocol (docs/evaluation.md): per split, one confusion matrix over the whole split on cells
 whose true visibility p(o) >= 0.5 and whose true class is valid; occlusion IoU of the binarised
 visibility over every cell; the same by distance band and by weather preset, and inference time
-per frame.
+per frame. Each split also keeps one confusion matrix per scene, from which `model.bootstrap`
+gives every score's 95 % interval over scenes; `compare_checkpoints` (eval.py --compare) scores
+two checkpoints on the same frames and bootstraps their difference, pairing the scenes.
 """
 
 from __future__ import annotations
@@ -23,9 +25,10 @@ from common.files import output_dir, write_bytes_atomic, write_json_atomic, writ
 from common.lifetime import DieWithParent
 from dataset_tools import SPLITS, DatasetIndex, read_frame
 
+from .bootstrap import paired_bootstrap, per_scene_arrays, scene_bootstrap
 from .checkpoint import load_checkpoint
 from .data import BevDataset
-from .eval_report import confusion_picture, frame_picture, markdown_table
+from .eval_report import comparison_table, confusion_picture, frame_picture, markdown_table
 from .metrics import BevMetrics, confusion, occlusion_confusion
 from .predict import predict, to_device
 from .run_dir import EvalDir, RunDir, checkpoint_path, frame_name
@@ -73,7 +76,7 @@ def validation_scores(model, ds, cfg, device, rank: int = 0, world: int = 1) -> 
     n = len(ds) if not t["val_max_frames"] else min(len(ds), t["val_max_frames"])
     score(model, ds, metrics.update, range(n), max(1, t["batch_size"] // world), cfg["data"]["num_workers"], device, rank, world)
     if world > 1:
-        for m in (metrics.cm, metrics.occ):
+        for m in (metrics.cm, metrics.occ, metrics.tol):
             dist.all_reduce(m)
     return metrics.compute()
 
@@ -85,28 +88,34 @@ def band_masks(grid) -> dict[str, torch.Tensor]:
 
 
 class SplitScores:
-    """Confusion matrices of one split: overall, per distance band and per weather preset."""
+    """Confusion matrices of one split: overall, per distance band, per weather preset and per scene
+    (the bootstrap's unit: `result()["interval"]`)."""
 
     def __init__(self, class_names, grid):
         self.class_names = class_names
         self.overall = BevMetrics(class_names)
         self.bands = {name: (mask, BevMetrics(class_names)) for name, mask in band_masks(grid).items()}
         self.weather: dict[str, BevMetrics] = {}
+        self.scenes: dict[str, BevMetrics] = {}
         self.frames = 0
         self.seconds = 0.0
 
-    def add_frame(self, pred: torch.Tensor, occ_logit: torch.Tensor, semantic, visibility, weather: str):
-        """One frame: pred (X, Y) class ids, occ_logit (X, Y) visibility logits, truth (X, Y)."""
+    def add_frame(self, pred: torch.Tensor, occ_logit: torch.Tensor, semantic, visibility, weather: str, scene: str = ""):
+        """One frame of `scene`: pred (X, Y) class ids, occ_logit (X, Y) visibility logits, truth (X, Y)."""
         k = len(self.class_names)
         cm, occ = confusion(pred, semantic, visibility, k), occlusion_confusion(occ_logit, visibility)
         self.overall.merge_(cm, occ)
+        self.overall.add_tolerance(pred, semantic, visibility)
         self.weather.setdefault(weather or "unknown", BevMetrics(self.class_names)).merge_(cm, occ)
+        self.scenes.setdefault(scene or "unknown", BevMetrics(self.class_names)).merge_(cm, occ)
         for mask, m in self.bands.values():
             m.merge_(confusion(pred[mask], semantic[mask], visibility[mask], k),
                      occlusion_confusion(occ_logit[mask], visibility[mask]))
         self.frames += 1
 
     def result(self) -> dict:
+        scenes = {n: {"confusion": m.cm.tolist(), "occlusion_confusion": m.occ.tolist()} for n, m in sorted(self.scenes.items())}
+        interval = scene_bootstrap(*per_scene_arrays(scenes), self.class_names) if scenes else {}
         return {
             "frames": self.frames,
             "inference_ms_per_frame": 1000 * self.seconds / max(self.frames, 1),
@@ -115,6 +124,8 @@ class SplitScores:
             "occlusion_confusion": self.overall.occ.tolist(),
             "bands": {n: m.compute() for n, (_, m) in self.bands.items()},
             "weather": {n: m.compute() for n, m in sorted(self.weather.items())},
+            "scenes": scenes,
+            "interval": {key: list(v) for key, v in interval.items()},
         }
 
 
@@ -134,7 +145,7 @@ def evaluate_split(model, cfg, index: DatasetIndex, split: str, out: EvalDir, pi
             ref = ds.refs[i]
             classes, occ = pred.classes[j].cpu(), pred.occlusion_logit[j].cpu()
             semantic, visibility = batch["semantic"][j].cpu(), batch["visibility"][j].cpu()
-            scores.add_frame(classes, occ, semantic, visibility, ref.weather)
+            scores.add_frame(classes, occ, semantic, visibility, ref.weather, ref.scene)
             name = frame_name(ref)
             if save_predictions:
                 buf = io.BytesIO()
@@ -193,4 +204,40 @@ def evaluate_checkpoint(checkpoint, split: str = "all", out=None, data=None, exp
     write_json_atomic(out.metrics, report, indent=2)
     table = markdown_table(results, method)
     write_text_atomic(out.table, table)
+    return table, out
+
+
+def compare_checkpoints(checkpoint_a, checkpoint_b, split: str = "all", out=None, data=None, n: int = 1000) -> tuple[str, EvalDir]:
+    """eval.py --compare: score two checkpoints (or run folders) on the same frames (`data`, default
+    A's data set) and bootstrap the difference A - B over scenes, paired (each resample draws the
+    same scenes for both). Writes comparison.json and comparison.md into `out` (default
+    `<A's run folder>/compare_<B's run folder name>`), each side's confusion pictures in a/ and b/.
+    -> (the Markdown table, the output folder)."""
+    a, b = checkpoint_path(checkpoint_a), checkpoint_path(checkpoint_b)
+    model_a, cfg_a, ckpt_a, index = open_checkpoint(a, data)
+    model_b, cfg_b, ckpt_b, _ = open_checkpoint(b, str(index.root))
+    if cfg_a["data"]["grid"] != cfg_b["data"]["grid"]:
+        raise EvalError(f"{b}: scores on the grid {cfg_b['data']['grid']}, {a} on {cfg_a['data']['grid']}: not the same cells to compare")
+    splits = [s for s in SPLITS if index.splits.get(s)] if split == "all" else [split]
+    if not splits:
+        raise EvalError(f"{index.root}: no split has frames")
+    out = EvalDir(out) if out else RunDir.of_checkpoint(a).comparison(RunDir.of_checkpoint(b).root.name)
+    output_dir(out.root)
+    for side in ("a", "b"):
+        out.side(side).root.mkdir(parents=True, exist_ok=True)
+    report = {"a": {"checkpoint": str(a), "step": ckpt_a.get("step")}, "b": {"checkpoint": str(b), "step": ckpt_b.get("step")},
+              "data": str(index.root), "class_names": index.class_names, "resamples": n, "splits": {}}
+    for s in splits:
+        ra = evaluate_split(model_a, cfg_a, index, s, out.side("a"))
+        rb = evaluate_split(model_b, cfg_b, index, s, out.side("b"))
+        if sorted(ra["scenes"]) != sorted(rb["scenes"]):
+            raise EvalError(f"{index.root}: split '{s}' was not scored on the same scenes for both checkpoints")
+        report["splits"][s] = {"frames": ra["frames"], "scenes": len(ra["scenes"]),
+                               "difference": paired_bootstrap(per_scene_arrays(ra["scenes"]), per_scene_arrays(rb["scenes"]),
+                                                              index.class_names, n),
+                               "a": {k: ra[k] for k in ("overall", "interval", "scenes")},
+                               "b": {k: rb[k] for k in ("overall", "interval", "scenes")}}
+    write_json_atomic(out.comparison, report, indent=2)
+    table = comparison_table(report)
+    write_text_atomic(out.comparison_table, table)
     return table, out

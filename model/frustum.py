@@ -28,17 +28,21 @@ from geometry.rig import Rig, RigCamera
 from .augment import base_transform, transform_camera
 
 
-def depth_bins(d_min: float, d_max: float, bins: int, spacing: str = "linear") -> np.ndarray:
-    """Bin centres (metres along the ray): `linear` (uniform) or `log` (uniform in log distance)."""
+def depth_edges(d_min: float, d_max: float, bins: int, spacing: str = "linear") -> np.ndarray:
+    """The bins + 1 bin edges (metres along the ray): `linear` (uniform) or `log` (uniform in log distance)."""
     if not 0 < d_min < d_max or bins < 1:
         raise ValueError(f"depth bins: need 0 < min < max and bins >= 1, got {d_min}, {d_max}, {bins}")
     if spacing == "linear":
-        edges = np.linspace(d_min, d_max, bins + 1)
-        return (edges[:-1] + edges[1:]) / 2
+        return np.linspace(d_min, d_max, bins + 1)
     if spacing == "log":
-        edges = np.geomspace(d_min, d_max, bins + 1)
-        return np.sqrt(edges[:-1] * edges[1:])
+        return np.geomspace(d_min, d_max, bins + 1)
     raise ValueError(f"depth bins: spacing must be 'linear' or 'log', got {spacing!r}")
+
+
+def depth_bins(d_min: float, d_max: float, bins: int, spacing: str = "linear") -> np.ndarray:
+    """Bin centres (metres along the ray): the middle of each bin's edges (geometric for `log`)."""
+    edges = depth_edges(d_min, d_max, bins, spacing)
+    return (edges[:-1] + edges[1:]) / 2 if spacing == "linear" else np.sqrt(edges[:-1] * edges[1:])
 
 
 def feature_camera(camera, stride: int, image_size: tuple[int, int]):
@@ -102,6 +106,7 @@ class Frustum:
         d = m["depth"]
         # float32-rounded, so the data set and the model's float32 buffer agree exactly
         self.bins = depth_bins(d["min"], d["max"], d["bins"], d["spacing"]).astype(np.float32).astype(np.float64)
+        self.edges = depth_edges(d["min"], d["max"], d["bins"], d["spacing"])  # of the depth targets
 
     def nominal_transforms(self) -> list:
         return [base_transform(rc.camera, self.input_size) for rc in self.rig]

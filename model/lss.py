@@ -28,8 +28,9 @@ def make_encoder(mcfg: dict) -> nn.Module:
 
 
 class LSSFisheye(nn.Module):
-    def __init__(self, mcfg: dict, frustum: Frustum, num_classes: int = NUM_CLASSES):
-        """mcfg: the config's `model` section; frustum: the lift geometry of the config and rig."""
+    def __init__(self, mcfg: dict, frustum: Frustum, num_classes: int = NUM_CLASSES, camera_head: bool = False):
+        """mcfg: the config's `model` section; frustum: the lift geometry of the config and rig;
+        camera_head: add the camera-view semantic head (loss.camera_seg_weight > 0), run in training only."""
         super().__init__()
         self.frustum = frustum
         self.grid, self.input_size, self.camera_names = frustum.grid, frustum.input_size, frustum.rig.names
@@ -47,6 +48,8 @@ class LSSFisheye(nn.Module):
         self.semantic_head = nn.Conv2d(self.bev.out_channels, num_classes - 1, 1)  # classes 1..K-1; 0 is invalid
         self.occlusion_head = nn.Conv2d(self.bev.out_channels, 1, 1)  # logit of visibility p(o)
         self._index_cache = None
+        # built last, so the other layers draw the same initial weights with or without it
+        self.camera_head = nn.Conv2d(c, num_classes - 1, 1) if camera_head else None
 
     def _index(self, point_cell, batch: int):
         """The splat index of this batch's cameras; for the nominal cameras it is built once per
@@ -63,24 +66,31 @@ class LSSFisheye(nn.Module):
 
     def lift(self, images):
         """images (B, N, 3, H, W) in [0, 1] -> depth probabilities (B, N, D, h, w), context (B, N, C, h, w)."""
+        depth_logits, ctx = self.lift_logits(images)
+        return depth_logits.softmax(2), ctx
+
+    def lift_logits(self, images):
+        """images (B, N, 3, H, W) in [0, 1] -> depth logits (B, N, D, h, w), context (B, N, C, h, w)."""
         b, n, _, h, w = images.shape
         x = self.encoder.normalise(images.flatten(0, 1))
         ts = self.encoder.total_stride
         x = F.pad(x, (0, -w % ts, 0, -h % ts))  # right/bottom padding keeps the principal point
         depth_logits, ctx = self.encoder(x)
         hs, ws = -(-h // self.stride), -(-w // self.stride)
-        depth = depth_logits[..., :hs, :ws].softmax(1)
+        depth_logits = depth_logits[..., :hs, :ws]
         ctx = ctx[..., :hs, :ws]
-        return depth.view(b, n, *depth.shape[1:]), ctx.reshape(b, n, *ctx.shape[1:])
+        return depth_logits.reshape(b, n, *depth_logits.shape[1:]), ctx.reshape(b, n, *ctx.shape[1:])
 
     def forward(self, images, point_cell=None, intrinsics=None):
         """images (B, N, 3, H, W) in [0, 1] at the input size; point_cell (B, N, D, h, w) and
         intrinsics (B, N, 12) for augmented cameras (default: the rig's nominal ones, index cached).
-        -> {'semantic': (B, K-1, X, Y) logits, 'occlusion': (B, X, Y) visibility logits}."""
+        -> {'semantic': (B, K-1, X, Y) logits, 'occlusion': (B, X, Y) visibility logits}; in training
+        also 'depth_logits' (B, N, D, h, w) and, with the camera head, 'camera_semantic' (B, N, K-1, h, w)."""
         if images.ndim != 5 or images.shape[1] != len(self.camera_names) or tuple(images.shape[-1:-3:-1]) != self.input_size:
             raise ValueError(f"model: images must be (B, {len(self.camera_names)}, 3, {self.input_size[1]}, {self.input_size[0]}), got {tuple(images.shape)}")
         b, n = images.shape[:2]
-        depth, ctx = self.lift(images)
+        depth_logits, ctx = self.lift_logits(images)
+        depth = depth_logits.softmax(2)
         if point_cell is not None and point_cell.shape[2:] != depth.shape[2:]:
             raise ValueError(f"model: point_cell {tuple(point_cell.shape)} does not match the features {tuple(depth.shape)}")
         index = self._index(point_cell, b)
@@ -94,4 +104,9 @@ class LSSFisheye(nn.Module):
                 intrinsics = self.nominal_intrinsics[None].expand(b, -1, -1)
             pooled = self.pool(feats.view(b, n, x_, y_, -1), cover, intrinsics)
         y = self.bev(pooled)
-        return {"semantic": self.semantic_head(y), "occlusion": self.occlusion_head(y)[:, 0]}
+        out = {"semantic": self.semantic_head(y), "occlusion": self.occlusion_head(y)[:, 0]}
+        if self.training:
+            out["depth_logits"] = depth_logits
+            if self.camera_head is not None:
+                out["camera_semantic"] = self.camera_head(ctx.flatten(0, 1)).view(b, n, -1, *ctx.shape[-2:])
+        return out

@@ -29,3 +29,12 @@ def rectify_part(cfg: dict) -> dict:
     """What of `data` decides the model's cameras (for checkpoint compatibility)."""
     fov = _cylinder(cfg)
     return {"rectify": "none"} if fov is None else {"rectify": cfg["data"]["rectify"], "cylinder": list(fov)}
+
+
+def source_maps(rect: Rectifier, name: str):
+    """(map_x, map_y) float32 (H, W): the fisheye position each rectified pixel of camera `name`
+    samples, as cv2.remap applies the rectifier's fixed-point tables (negative: no fisheye pixel)."""
+    import cv2
+
+    m1, m2 = rect.maps[name]
+    return cv2.convertMaps(m1, m2, cv2.CV_32FC1)

@@ -9,6 +9,8 @@
         eval/               EvalDir: eval.py's default output folder
             metrics.json, table.md, confusion_<split>.png, frame_<split>_<scene>_<frame>.png,
             predictions/<scene>_<frame>.npz
+        compare_<other>/    EvalDir: eval.py --compare against the run folder <other>
+            comparison.json, comparison.md, a/ and b/ (each checkpoint's confusion_<split>.png)
 
 Checkpoints themselves are written and read by `model.checkpoint` (one reader for resume, eval
 and the ablation).
@@ -54,6 +56,10 @@ class RunDir:
     def eval(self) -> EvalDir:
         return EvalDir(self.root / "eval")
 
+    def comparison(self, other: str) -> EvalDir:
+        """eval.py --compare's default output folder: this run against the run folder `other`."""
+        return EvalDir(self.root / f"compare_{other}")
+
 
 class EvalDir:
     """An evaluation's output folder (eval.py's --out; the ablation's `<run>/eval`)."""
@@ -86,6 +92,19 @@ class EvalDir:
 
     def prediction(self, name: str) -> Path:
         return self.predictions / f"{name}.npz"
+
+    @property
+    def comparison(self) -> Path:
+        """eval.py --compare: both checkpoints' scores and their paired difference per split."""
+        return self.root / "comparison.json"
+
+    @property
+    def comparison_table(self) -> Path:
+        return self.root / "comparison.md"
+
+    def side(self, label: str) -> EvalDir:
+        """eval.py --compare: one checkpoint's confusion pictures (label a or b)."""
+        return EvalDir(self.root / label)
 
 
 def checkpoint_path(path) -> Path:

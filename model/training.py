@@ -97,6 +97,12 @@ class Run:
     stop: GracefulStop | None = None
 
     @property
+    def total_steps(self) -> int:
+        """Optimiser steps of the whole run: train.max_steps, or every whole batch of every epoch."""
+        t = self.cfg["train"]
+        return min(t["max_steps"] or 10**12, len(self.train_ds) // t["batch_size"] * t["epochs"])
+
+    @property
     def dir(self) -> RunDir:
         return RunDir(self.out)
 
@@ -200,6 +206,10 @@ def log_step(run: Run, loss, parts: dict, out: dict, batch: dict, samples_per_s:
         run.writer.add_scalar("train/loss", float(loss), run.step)
         run.writer.add_scalar("train/semantic", float(parts["semantic"]), run.step)
         run.writer.add_scalar("train/occlusion", float(parts["occlusion"]), run.step)
+        run.writer.add_scalar("train/lr", run.opt.param_groups[0]["lr"], run.step)
+        for k in ("depth", "camera_semantic", "dice"):  # present when their loss weight is > 0
+            if k in parts:
+                run.writer.add_scalar(f"train/{k}", float(parts[k]), run.step)
         run.writer.add_scalar("train/samples_per_s", samples_per_s, run.step)
     if t["image_every"] and run.step % t["image_every"] == 0:
         pred = decode(out).classes[0].cpu().numpy()
@@ -207,6 +217,18 @@ def log_step(run: Run, loss, parts: dict, out: dict, batch: dict, samples_per_s:
         pic = torch.from_numpy(colorize_train(pred)), torch.ones(truth.shape[0], 4, 3, dtype=torch.uint8) * 255, \
             torch.from_numpy(colorize_train(truth, vis))
         run.writer.add_image("bev/prediction_truth", torch.cat(pic, 1).permute(2, 0, 1).float() / 255.0, run.step)
+
+
+def learning_rate(t: dict, step: int, total: int) -> float:
+    """train.lr at optimiser step `step` (0-based) of `total`: a linear warm-up over
+    train.warmup_steps, then constant or a cosine decay to 0 at the last step."""
+    lr = t["lr"]
+    if t["warmup_steps"] and step < t["warmup_steps"]:
+        return lr * (step + 1) / t["warmup_steps"]
+    if t["lr_schedule"] == "cosine":
+        done = (step - t["warmup_steps"]) / max(1, total - t["warmup_steps"])
+        lr *= 0.5 * (1 + math.cos(math.pi * min(1.0, done)))
+    return lr
 
 
 def train_one_epoch(run: Run, bar, alpha: torch.Tensor, max_steps: int | None) -> bool:
@@ -234,11 +256,14 @@ def train_one_epoch(run: Run, bar, alpha: torch.Tensor, max_steps: int | None) -
         batch = to_device(batch, run.device)
         out = forward(run.ddp, batch)
         loss, parts = total_loss(out, batch, alpha, loss_cfg["occlusion_weight"], loss_cfg["visibility_weighting"],
-                                 loss_cfg["occlusion_target"])
+                                 loss_cfg["occlusion_target"], loss_cfg["depth_weight"], loss_cfg["camera_seg_weight"],
+                                 loss_cfg["dice_weight"])
         run.opt.zero_grad(set_to_none=True)
         loss.backward()
         if t["grad_clip"] > 0:
             torch.nn.utils.clip_grad_norm_(run.model.parameters(), t["grad_clip"])
+        for g in run.opt.param_groups:
+            g["lr"] = learning_rate(t, run.step, run.total_steps)
         run.opt.step()
         run.step += 1
         run.step_in_epoch += 1
@@ -278,8 +303,7 @@ def train(cfg: dict, out_dir: Path, quiet: bool = False) -> dict:
         run.writer = TensorBoardLog(run.dir.tb)  # a write error: one line naming tb/, exit 1
     run.stop = GracefulStop(run.world)
     max_steps = t["max_steps"] or None
-    total = min(max_steps or 10**12, len(run.train_ds) // t["batch_size"] * t["epochs"])
-    bar = tqdm(total=total, initial=run.step, disable=not run.main or quiet, desc="train", dynamic_ncols=True)
+    bar = tqdm(total=run.total_steps, initial=run.step, disable=not run.main or quiet, desc="train", dynamic_ncols=True)
     done = max_steps is not None and run.step >= max_steps
     while run.epoch < t["epochs"] and not done:
         done = train_one_epoch(run, bar, alpha, max_steps)

@@ -362,6 +362,21 @@ add("contact-sheet-frame-negative", "contact_sheet", on_ds("--frame", "-1"), nee
 add("contact-sheet-png-garbage", "contact_sheet", on_ds(edit=png_garbage("cam_front.png")), needles=("cam_front.png",))
 add("validate-index-splits-list", "validate", on_ds(edit=index_json(INDEX_BAD[0][1])), code=1, needles=("problem",))
 add("validate-bad-flag", "validate", on_ds("--frobnicate"), needles=("--frobnicate",))
+add("stitch-images-missing", "stitch", lambda ctx: [str(ctx.ws / "nothing"), "--out", str(ctx.out / "s.png")], needles=("nothing",))
+add("stitch-bound-negative", "stitch", lambda ctx: [str(first_frame(ctx.ds())), "--out", str(ctx.out / "s.png"), "--bound", "-1"],
+    needles=("--bound",))
+add("stitch-meta-list", "stitch", lambda ctx: [str(first_frame(ctx.ds(edit=meta(b"[]")))), "--out", str(ctx.out / "s.png")],
+    needles=("meta.json", "JSON object"))
+add("export-woodscape-index-splits-list", "export-woodscape", lambda ctx: [str(ctx.ds(edit=index_json(INDEX_BAD[0][1]))), str(ctx.out)],
+    needles=("index.json", "splits"))
+
+
+@case("export-woodscape-out-is-a-file", "export-woodscape", needles=("OUT", "is a file"))
+def _(ctx):
+    ctx.out_is_a_file()
+    return [str(ctx.ds()), str(ctx.out)]
+
+
 add("validate-no-dataset", "validate", lambda ctx: [str(ctx.ws / "nothing")], code=1, needles=("dataset", "nothing", "missing"))
 
 # ------------------------------------------------------------------ train.py

@@ -1,9 +1,11 @@
 """experiments.ablation end to end at a tiny scale: every row of Tables I and II trains a few
-steps on real renders, is scored, lands in tables.md / tables.json, and is not rerun."""
+steps on real renders, is scored, lands in tables.md / tables.json, and is not rerun; the verdict
+logic on constructed scores."""
 
 import json
 import shutil
 
+import numpy as np
 import pytest
 
 from experiments import ablation
@@ -11,12 +13,14 @@ from experiments import ablation
 
 @pytest.fixture
 def tiny_with_test_splits(tiny_dataset, tmp_path):
-    """The tiny render (train only) with its frames also listed as easy, medium and hard splits."""
+    """The tiny render (train only) with its frames also listed as easy, medium and hard splits (two
+    scenes of one frame each per split)."""
     root = tmp_path / "ds"
     shutil.copytree(tiny_dataset, root)
     index = json.loads((root / "index.json").read_text())
     frames = index["splits"]["train"]
-    index["splits"].update(easy=frames[:2], medium=frames[2:4], hard=frames[4:6])
+    index["splits"].update(easy=frames[0:4:2], medium=frames[4:8:2], hard=frames[8:12:2])
+    assert all(len({f["scene"] for f in index["splits"][s]}) == 2 for s in ("easy", "medium", "hard"))
     (root / "index.json").write_text(json.dumps(index))
     return root
 
@@ -40,15 +44,38 @@ def test_every_row_trains_is_scored_and_lands_in_the_tables(tiny_with_test_split
     assert {r["row"] for r in tables["table_1"]} == {"ours", "rectified", "ours_scratch_trunk"}
     assert len(tables["table_1"]) == 3 * 3 and len(tables["table_2"]) == len(ablation.TABLE_II)
     for entry in tables["table_1"] + tables["table_2"]:
-        mean, std, n = entry["ours"]["miou"]
-        assert 0.0 <= mean <= 1.0 and n == 1 and std is None
+        m = entry["ours"]["miou"]
+        assert 0.0 <= m["low"] <= m["high"] <= 1.0 and m["low"] - 1e-6 <= m["mean"] <= m["high"] + 1e-6 and m["seeds"] == 1 and m["std"] is None and m["scenes"] == 2
     for row in ablation.ROWS:
         result = json.loads((out / row / "seed0" / "result.json").read_text())
         assert result["steps"] == 2 and set(result["splits"]) == {"easy", "medium", "hard"}
+        assert len(result["splits"]["medium"]["scenes"]) == 2  # the per-scene matrices the intervals come from
+    claims = {c["claim"]: c for c in tables["claims"]}
+    assert len(claims) == len(ablation.CLAIMS) and all(c["complete"] for c in claims.values())
+    raw = claims[ablation.CLAIMS[0][0]]
+    assert [p["split"] for p in raw["parts"]] == ["easy", "medium", "hard"]
+    for c in claims.values():
+        assert c["verdict"] in ("reproduced", "contradicted", "undecided")
+        for p in c["parts"]:
+            assert p["low"] <= p["high"] and p["detectable"] == pytest.approx((p["high"] - p["low"]) / 2)
+            assert p["verdict"] == ablation.verdict(p["low"], p["high"])
     ckpt_cfg = __import__("torch").load(out / "rectified" / "seed0" / "latest.pt", weights_only=False)["config"]
     assert ckpt_cfg["data"]["rectify"] == "cylindrical" and ckpt_cfg["model"]["trunk"] == "efficientnet_lite0"
     md = (out / "tables.md").read_text()
     assert "0.796" in md and "0.659" in md and "Intrinsics + embedding" in md  # the paper's numbers beside ours
+    assert "## Verdicts on the paper's claims" in md and "| ours - rectified | medium* | 1, 1 | 2 |" in md
+
+    # a result scored before per-scene matrices were kept is scored again, not retrained
+    done = out / "ours" / "seed0" / "result.json"
+    legacy = json.loads(done.read_text())
+    for split in legacy["splits"].values():
+        del split["scenes"]
+    done.write_text(json.dumps(legacy))
+    trained = (out / "ours" / "seed0" / "latest.pt").stat().st_mtime_ns
+    assert ablation.main(args + ["--rows", "ours"]) == 0
+    again = json.loads(done.read_text())
+    assert all(len(s["scenes"]) == 2 for s in again["splits"].values()) and again["steps"] == 2
+    assert (out / "ours" / "seed0" / "latest.pt").stat().st_mtime_ns == trained
 
     # a finished row is not rerun: its result stays byte for byte, and a second call is quick
     before = (out / "pool_max" / "seed0" / "result.json").read_bytes()
@@ -62,6 +89,22 @@ def test_every_row_trains_is_scored_and_lands_in_the_tables(tiny_with_test_split
     assert ablation.main(args[:1] + ["1"] + args[2:] + ["--report", "--seeds", "2"]) == 0
     assert len(json.loads((out / "tables.json").read_text())["table_2"]) == len(ablation.TABLE_II)
     assert not (out / "ours" / "seed1").exists()
+    # ... also when the data set is gone (the verdicts come from result.json alone)
+    shutil.move(tiny_with_test_splits, tmp_path / "gone")
+    (out / "tables.json").unlink()
+    assert ablation.main(args + ["--report"]) == 0
+    assert len(json.loads((out / "tables.json").read_text())["claims"]) == len(ablation.CLAIMS)
+
+
+def test_table_two_rows_can_have_fewer_seeds(tiny_with_test_splits, tmp_path):
+    out = tmp_path / "ablation"
+    args = runner_args("--steps", "1", "--seeds", "2", "--seeds-table2", "1", "--rows", "ours,pool_max",
+                       "--data", str(tiny_with_test_splits), "--out", str(out))
+    assert ablation.main(args) == 0
+    assert sorted(p.name for p in (out / "ours").iterdir()) == ["seed0", "seed1"]
+    assert sorted(p.name for p in (out / "pool_max").iterdir()) == ["seed0"]
+    t1 = json.loads((out / "tables.json").read_text())["table_1"]
+    assert {e["ours"]["miou"]["seeds"] for e in t1} == {2}
 
 
 def test_bad_arguments_are_one_line_errors(tmp_path):
@@ -76,7 +119,7 @@ def test_bad_arguments_are_one_line_errors(tmp_path):
         ablation.main(["--budget-minutes", "0", "--out", str(tmp_path / "o")])
     for args, message in [(["--steps", "1", "--budget-minutes", "1"], "argument --budget-minutes: not allowed with argument --steps"),
                           (["--steps", "many"], "argument --steps: invalid int value: 'many'"),
-                          ([], "one of the arguments --budget-minutes --steps is required")]:
+                          ([], "one of the arguments --steps --budget-minutes is required")]:
         r = subprocess.run([sys.executable, "-m", "experiments.ablation", *args, "--out", str(tmp_path / "o")], capture_output=True, text=True)
         assert r.returncode == 2 and r.stderr.strip() == f"error: experiments.ablation: {message} (see --help)", r.stderr
 
@@ -105,5 +148,87 @@ def test_a_split_added_later_is_scored_without_retraining(tiny_with_test_splits,
     assert ablation.main(args) == 0
     result = json.loads((run / "result.json").read_text())
     assert set(result["splits"]) == {"easy", "medium", "hard", "heldout"} and result["splits"]["heldout"]["frames"] == 2
+    assert all(len(s["scenes"]) >= 1 for s in result["splits"].values())
     assert result["steps"] == 1 and (run / "latest.pt").stat().st_mtime_ns == trained
     assert "| LSS-fisheye (ours), raw fisheye | heldout |" in (out / "tables.md").read_text()
+
+
+# ----------------------------------------------------------------- verdicts on constructed inputs
+
+
+def test_verdict_of_an_interval():
+    assert ablation.verdict(0.01, 0.05) == "reproduced"  # above 0: the paper's direction
+    assert ablation.verdict(-0.05, -0.001) == "contradicted"
+    assert ablation.verdict(-0.01, 0.05) == "undecided"
+    assert ablation.verdict(0.0, 0.05) == "undecided"  # touching 0 is not excluding it
+    assert ablation.verdict(0.0, 0.0) == "undecided"
+    assert ablation.verdict(float("nan"), float("nan")) == "undecided"
+    assert ablation.detectable(-0.01, 0.05) == pytest.approx(0.03)
+    assert ablation.combine(["reproduced", "reproduced"]) == "reproduced"
+    assert ablation.combine(["reproduced", "undecided"]) == "undecided"
+    assert ablation.combine(["reproduced", "contradicted", "undecided"]) == "contradicted"
+    assert ablation.combine([]) == "undecided"
+
+
+NAMES = ["invalid", "vehicle", "lane_marking", "street", "background"]
+
+
+def scene(tp, fn):
+    """One scene's scores: vehicles found tp of tp + fn (the rest predicted street)."""
+    cm = np.zeros((5, 5), np.int64)
+    cm[1, 1], cm[1, 3], cm[2, 2], cm[3, 3], cm[4, 4] = tp, fn, 10, 100, 50
+    return {"confusion": cm.tolist(), "occlusion_confusion": [[80, 5], [5, 10]]}
+
+
+def result(row, seed, scenes_by_split):
+    """A result.json of `row` with the given per-scene (tp, fn) on each split."""
+    from model.bootstrap import per_scene_arrays, scores
+
+    splits = {}
+    for split, pairs in scenes_by_split.items():
+        sc = {f"{split}_{i:02d}": scene(*p) for i, p in enumerate(pairs)}
+        cms, occs = per_scene_arrays(sc)
+        overall = {k: float(v) for k, v in scores(cms.sum(0), occs.sum(0), NAMES).items()}
+        splits[split] = {"overall": overall, "frames": 2 * len(pairs), "inference_ms_per_frame": 1.0, "scenes": sc}
+    return {"row": row, "seed": seed, "steps": 10, "train_seconds": 1.0, "splits": splits}
+
+
+def test_claims_on_constructed_scores():
+    """Ten scenes per split of varied difficulty. `ours` finds 10 more vehicles than `rectified` in
+    every scene of every split (reproduced); `weights_13_3_1_1` 10 more than `ours` (contradicted);
+    the occlusion rows are the same model (undecided, detectable 0); the pooling rows alternate."""
+    base = [(20 + 5 * i, 60 - 5 * i) for i in range(10)]
+    shift = lambda d: [(tp + d, fn - d) for tp, fn in base]  # noqa: E731
+    splits = lambda pairs: {s: pairs for s in ("easy", "medium", "hard", "heldout")}  # noqa: E731
+    rows = {"ours": shift(10), "rectified": base, "weights_13_3_1_1": shift(20), "weights_13_3_1_1_no_occlusion": shift(20),
+            "pool_sensors_per_cell": shift(5), "pool_weighted_sum": base, "pool_sum": base,
+            "pool_max": [(tp + (8 if i % 2 else -8), fn - (8 if i % 2 else -8)) for i, (tp, fn) in enumerate(base)]}
+    results = {row: [result(row, s, splits(p)) for s in range(3)] for row, p in rows.items()}
+    claims = {c["claim"]: c for c in ablation.claims(results, NAMES)}
+    raw, weights, occlusion, pooling = (claims[c[0]] for c in ablation.CLAIMS)
+    assert raw["verdict"] == "reproduced" and raw["complete"]
+    assert [(p["split"], p["paper_split"]) for p in raw["parts"]] == [("easy", True), ("medium", True), ("hard", True), ("heldout", False)]
+    for p in raw["parts"]:
+        assert p["diff"] > 0 and p["low"] > 0 and p["verdict"] == "reproduced" and p["seeds"] == [3, 3] and p["scenes"] == 10
+    assert weights["verdict"] == "contradicted" and all(p["high"] < 0 for p in weights["parts"])
+    assert occlusion["verdict"] == "undecided"
+    assert all(p["diff"] == 0 and p["low"] == p["high"] == 0 and p["detectable"] == 0 for p in occlusion["parts"])
+    parts = {(p["better"], p["worse"], p["split"]): p for p in pooling["parts"]}
+    assert parts[("ours", "pool_sensors_per_cell", "medium")]["verdict"] == "reproduced"
+    assert parts[("pool_sensors_per_cell", "pool_weighted_sum", "medium")]["verdict"] == "reproduced"
+    sum_max = parts[("pool_sum", "pool_max", "medium")]
+    assert sum_max["verdict"] == "undecided" and sum_max["low"] < 0 < sum_max["high"] and sum_max["detectable"] > 0
+    assert pooling["verdict"] == "undecided"  # one of its three pairs is undecided
+
+    # a row without per-scene scores (an old result, its checkpoint gone) leaves the claim undecided, not wrong
+    for r in results["rectified"]:
+        for split in r["splits"].values():
+            del split["scenes"]
+    raw = ablation.claims(results, NAMES)[0]
+    assert raw["verdict"] == "undecided" and not raw["complete"] and raw["parts"] == []
+    md, js = ablation.tables(results, {"scale": "cpu", "data": "d", "seeds": 3, "seeds_table2": 3, "steps": 10,
+                                       "budget_minutes": None, "class_names": NAMES})
+    assert "| raw fisheye > cylindrically rectified (Table I, every split) | **undecided** (rows or splits missing) |" in md
+    assert "| uniform class weights > 13-3-1-1 (Table II) | **contradicted** |" in md
+    row = next(e for e in js["table_1"] if e["row"] == "rectified" and e["split"] == "easy")["ours"]["miou"]
+    assert row["low"] is None and row["std"] == pytest.approx(0.0, abs=1e-12)  # no interval without per-scene scores; the seeds' spread instead

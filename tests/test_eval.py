@@ -15,11 +15,11 @@ NAMES = ["invalid", "vehicle", "lane_marking", "street", "background"]
 GRID = BevGrid(x_min=-4, x_max=4, y_min=-4, y_max=4, res=1.0)  # 8 x 8
 
 
-def scores_of(pred, truth, vis, occ_logit=None):
-    s = evaluation.SplitScores(NAMES, GRID)
+def scores_of(pred, truth, vis, occ_logit=None, scene="s0", s=None):
+    s = s or evaluation.SplitScores(NAMES, GRID)
     pred, truth, vis = (torch.as_tensor(np.asarray(a)) for a in (pred, truth, vis))
     occ = torch.as_tensor(occ_logit) if occ_logit is not None else torch.where(vis >= 0.5, 5.0, -5.0)
-    s.add_frame(pred, occ, truth, vis, "clear_noon")
+    s.add_frame(pred, occ, truth, vis, "clear_noon", scene)
     return s.result()
 
 
@@ -93,12 +93,32 @@ def test_occlusion_iou_and_distance_bands():
     assert list(r["weather"]) == ["clear_noon"]
 
 
-def test_table_has_the_papers_columns():
+def test_scores_keep_one_confusion_per_scene_and_an_interval_over_scenes():
+    """Two scenes of two frames each: per-scene matrices sum to the split's; the interval of a
+    two-scene split runs from one scene's IoU to the other's (tests/test_bootstrap.py)."""
+    truth, vis = layout(), np.ones((8, 8), np.float32)
+    worse = truth.copy()
+    worse[2:4, 3:5] = 3  # every vehicle cell predicted street
+    half = truth.copy()
+    half[2:4, 3] = 3  # half of them
+    s = evaluation.SplitScores(NAMES, GRID)
+    for scene, pred in (("a", truth), ("a", truth), ("b", half), ("b", worse)):
+        r = scores_of(pred, truth, vis, scene=scene, s=s)
+    assert list(r["scenes"]) == ["a", "b"]
+    assert (np.sum([v["confusion"] for v in r["scenes"].values()], 0) == np.array(r["confusion"])).all()
+    assert np.array(r["scenes"]["a"]["confusion"]).sum() == 2 * 64
+    assert r["overall"]["iou/vehicle"] == pytest.approx(10 / 16)
+    assert r["interval"]["iou/vehicle"] == [pytest.approx(2 / 8), 1.0]  # scene b alone: 2 of 8; scene a: 8 of 8
+    assert r["interval"]["iou/lane_marking"] == [1.0, 1.0]
+
+
+def test_table_has_the_papers_columns_and_intervals():
     truth = layout()
     res = {"easy": scores_of(truth, truth, np.ones((8, 8), np.float32))}
     table = markdown_table(res, "ours")
-    assert table.splitlines()[0] == "| Method | Image type | Dataset | mIoU | Occlusions | Vehicles | Markings | Street | Background |"
-    assert "| ours | Raw distorted | easy | " in table
+    assert table.splitlines()[0] == "| Method | Image type | Dataset | Scenes | mIoU | Occlusions | Vehicles | Markings | Street | Background |"
+    assert "| ours | Raw distorted | easy | 1 | 1.000 [1.000, 1.000] | - | 1.000 [1.000, 1.000] |" in table
+    assert "95 % interval of a bootstrap over the split's scenes" in table
 
 
 def test_eval_of_a_trained_checkpoint_equals_a_recomputation_from_its_predictions(tiny_dataset, tmp_path):
@@ -148,6 +168,27 @@ def test_eval_of_a_trained_checkpoint_equals_a_recomputation_from_its_prediction
         assert res["overall"][f"iou/{n}"] == pytest.approx(v, nan_ok=True), n
     assert res["overall"]["miou"] == pytest.approx(np.nanmean(list(ious.values())))
 
+    # every split carries its scenes' matrices and a 95 % interval of each score
+    assert sorted(res["scenes"]) == sorted({ref.scene for ref in refs}) and len(res["scenes"]) == 7
+    assert (np.sum([v["confusion"] for v in res["scenes"].values()], 0) == cm).all()
+    for key, (low, high) in res["interval"].items():
+        assert low <= high, key
+    assert "| train | 7 | " in (out / "table.md").read_text()
+
+    # --compare of a checkpoint with itself: the same frames scored twice, a difference of exactly 0
+    cmp_out = tmp_path / "cmp"
+    r = subprocess.run([sys.executable, "eval.py", "--compare", str(tmp_path / "run"), str(tmp_path / "run" / "latest.pt"),
+                        "--out", str(cmp_out), "--threads", "1"], capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr[-2000:]
+    cmp = json.loads((cmp_out / "comparison.json").read_text())
+    diff = cmp["splits"]["train"]["difference"]
+    assert cmp["splits"]["train"]["scenes"] == 7 and set(diff) == set(res["overall"])
+    for key, d in diff.items():
+        assert d["diff"] == 0.0 and d["low"] == 0.0 and d["high"] == 0.0, key
+        assert d["a"] == pytest.approx(res["overall"][key], nan_ok=True), key
+    assert "| train | 7 | mIoU |" in r.stdout and "| +0.000 | [+0.000, +0.000] | undecided |" in r.stdout
+    assert (cmp_out / "a" / "confusion_train.png").is_file() and (cmp_out / "b" / "confusion_train.png").is_file()
+
     # a run folder stands for its latest.pt; the output goes to the run's eval/ by default
     r = subprocess.run([sys.executable, "eval.py", "--checkpoint", str(tmp_path / "run"), "--split", "train", "--pictures", "0",
                         "--threads", "1"], capture_output=True, text=True, timeout=600)
@@ -165,6 +206,10 @@ def test_eval_of_a_trained_checkpoint_equals_a_recomputation_from_its_prediction
         (["--checkpoint", ckpt, "--split", "hard"], "split 'hard' has no frames"),
         (["--checkpoint", ckpt, "--config", "configs/train/pool_max.yaml"], "checkpoint is from another config"),
         (["--checkpoint", ckpt, "--bogus"], "eval.py: unrecognized arguments: --bogus"),
+        (["--compare", ckpt, str(tmp_path / "missing.pt")], "missing.pt: no such checkpoint"),
+        (["--compare", ckpt, ckpt, "--split", "hard"], "split 'hard' has no frames"),
+        (["--compare", ckpt, ckpt, "--checkpoint", ckpt], "argument --checkpoint: not allowed with argument --compare"),
+        (["--compare", ckpt], "argument --compare: expected 2 arguments"),
     ]:
         r = subprocess.run([sys.executable, "eval.py", "--out", str(tmp_path / "bad"), *args], capture_output=True, text=True, timeout=300)
         assert r.returncode == 2, (args, r.stderr)

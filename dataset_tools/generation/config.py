@@ -9,6 +9,9 @@ split (sampled training blocks do not draw them; a named training recipe using o
 Sampled scenes of a test split must come from seeds no training scene uses: a sample block's seed
 may not be reused by another block, and no recipe or traffic seed is shared between a sampled
 scene and a scene of the other side (train vs. the test splits); both are refused at load time.
+A test block with `training_layouts: true` takes its layouts from the training scenes (the
+paper's "easy" split): its scenes share their layout seed with training on purpose, never their
+traffic seed.
 
 Relative paths (rig, recipes) are looked up as given (from the working directory), then beside
 the config, then in the repository. The `labels:` section belongs to the label fusion
@@ -25,7 +28,7 @@ from common.schema import Any, Bool, List, Name, Num, Section, Str
 
 from ..format.layout import LABEL_DIR, RECIPES_DIR, REPORT_DIR, SPLITS
 from .recipe import FAMILIES, WEATHER_PRESETS, load_recipe
-from .sampler import SAMPLE, sample_recipes
+from .sampler import SAMPLE, relit_recipes, sample_recipes
 
 REPO = Path(__file__).resolve().parents[2]
 DENOISE_QUALITIES = ("high", "balanced", "fast")  # OpenImageDenoise's, as Cycles names them
@@ -95,23 +98,32 @@ def load_config(path, option: str = "--config") -> dict:
     _check_rig(cfg["rig"], path)
     hold = cfg["hold_out"]
     scenes, names, blocks = [], set(), {}
+    loaded = []  # (where, split, sampled, recipes; None for a training_layouts block, drawn once training is known)
     for i, s in enumerate(cfg["scenes"]):
         where = f"{path}: scenes[{i}]"
         if not isinstance(s, dict) or ("recipe" in s) == ("sample" in s):
             raise ConfigError(f"{where}: must be a mapping with 'recipe' or 'sample' (one of them)")
         if "sample" in s:
             s = SAMPLED.validate(s, where)
-            recipes = _sampled(s, hold, blocks, where)
-            split, sampled = s["split"], True
+            relit = s["sample"]["training_layouts"]
+            if relit and s["split"] == "train":
+                raise ConfigError(f"{where}.sample.training_layouts: only for a test split (a training layout under new weather and traffic)")
+            recipes = None if relit else _sampled(s, hold, blocks, where)
+            loaded.append((where, s, True, recipes))
         else:
             s = SCENE.validate(s, where)
             recipe = load_recipe(_recipe_file(s["recipe"], path.parent, f"{where}.recipe"), s["overrides"],
                                  f"{where}.overrides")
             recipe["name"] = s["name"] or recipe["name"]
-            recipes, split, sampled = [recipe], s["split"], False
-            if split == "train" and (recipe["family"] in hold["families"] or recipe["weather"]["preset"] in hold["weather"]):
+            if s["split"] == "train" and (recipe["family"] in hold["families"] or recipe["weather"]["preset"] in hold["weather"]):
                 raise ConfigError(f"{where}: a training scene uses a held-out family or weather preset "
                                   f"({recipe['family']}, {recipe['weather']['preset']})")
+            loaded.append((where, s, False, [recipe]))
+    training = [r for _, s, _, recipes in loaded if s["split"] == "train" and recipes for r in recipes]
+    for where, s, sampled, recipes in loaded:
+        relit = recipes is None
+        if relit:
+            recipes = _sampled(s, hold, blocks, where, bases=training)
         for recipe in recipes:
             if cfg["frames"] is not None:
                 recipe["frames"]["count"] = cfg["frames"]
@@ -121,7 +133,7 @@ def load_config(path, option: str = "--config") -> dict:
             if name in names:
                 raise ConfigError(f"{where}.name: scene name '{name}' used twice")
             names.add(name)
-            scenes.append({"name": name, "split": split, "recipe": recipe, "sampled": sampled})
+            scenes.append({"name": name, "split": s["split"], "recipe": recipe, "sampled": sampled, "training_layout": relit})
     _check_disjoint(scenes, path)
     cfg["scenes"] = scenes
     return cfg
@@ -137,7 +149,7 @@ def _recipe_file(name: str, base: Path, where: str) -> Path:
     return p
 
 
-def _sampled(s: dict, hold: dict, blocks: dict, where: str) -> list[dict]:
+def _sampled(s: dict, hold: dict, blocks: dict, where: str, bases: list[dict] | None = None) -> list[dict]:
     spec, split = s["sample"], s["split"]
     if spec["seed"] in blocks:
         raise ConfigError(f"{where}.sample.seed: {spec['seed']} is already the seed of {blocks[spec['seed']]} "
@@ -152,14 +164,18 @@ def _sampled(s: dict, hold: dict, blocks: dict, where: str) -> list[dict]:
                 raise ConfigError(f"{where}.sample.{key}: {bad[0]} is held out (hold_out.{key})")
         if not families or not weather:
             raise ConfigError(f"{where}.sample: hold_out leaves no family or weather preset to train on")
+    if spec["training_layouts"]:
+        return relit_recipes(spec, bases, f"{where}.sample")
     return sample_recipes(spec, f"{where}.sample", families if split == "train" else None,
                           weather if split == "train" else None)
 
 
 def _check_disjoint(scenes: list[dict], path: Path) -> None:
     """No recipe or traffic seed shared between a sampled scene and a scene on the other side of the
-    train / test divide (named test scenes may reuse a training layout on purpose: `easy`)."""
-    seeds = lambda s: {s["recipe"]["seed"], s["recipe"]["traffic"]["seed"]}  # noqa: E731
+    train / test divide (named test scenes and `training_layouts` blocks reuse a training layout on
+    purpose, as `easy` does: the traffic seed of a `training_layouts` scene must still be new)."""
+    seeds = lambda s: ({s["recipe"]["traffic"]["seed"]} if s.get("training_layout")  # noqa: E731
+                       else {s["recipe"]["seed"], s["recipe"]["traffic"]["seed"]})
     by_seed: dict[int, list] = {}
     for a in scenes:
         if a["split"] == "train":

@@ -3,7 +3,9 @@
     recipes = sample_recipes({"count": 200, "seed": 1, "families": ["highway"], "weather": None})
 
 A dataset config asks for them with `- {sample: {count: 200, seed: 1, ...}, split: train}`
-(generation.config). Scene k of a block is drawn from its own stream `(STREAM, seed, k)`, so the
+(generation.config). A test block with `training_layouts: true` draws each scene's layout from the
+config's training scenes instead, under new weather, traffic and ego drive (`relit_recipes`: the
+paper's "easy" split). Scene k of a block is drawn from its own stream `(STREAM, seed, k)`, so the
 same seed gives the same recipes, growing `count` keeps the first scenes, and blocks with different
 seeds are independent. Every drawn recipe goes through recipe.validate_recipe. The ranges are
 the tables below (docs/scene-variety.md lists them); they stay inside recipe.SCHEMA's bounds and
@@ -14,7 +16,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from common.schema import List, Name, Num, Section, Str
+from common.errors import ConfigError
+from common.schema import Bool, List, Name, Num, Section, Str
 
 from .recipe import FAMILIES, VEHICLE_KINDS, WEATHER_PRESETS, validate_recipe
 
@@ -30,6 +33,9 @@ SAMPLE = Section({
     "rate_hz": Num(0.1, 100.0, default=2.0),
     "prefix": Name(default=None, nullable=True),  # scene names <prefix>_<k:04d>; default s<seed>
     "rig_jitter": Num(0.0, 1.0, default=0.0),  # scale of the per-scene rig jitter (0: the nominal rig)
+    # test splits: each scene a training scene's layout (family, seed, layout, roadside) under a new
+    # weather preset, new traffic and a new ego drive
+    "training_layouts": Bool(default=False),
 })
 
 # lanes per direction, as (values, weights)
@@ -129,6 +135,32 @@ def sample_recipes(spec: dict, source: str = "sample", families=None, weather=No
         preset = str(rng.choice(presets))
         d = draw_recipe(rng, family, preset, spec.get("frames", 4), spec.get("rate_hz", 2.0))
         d["name"] = f"{prefix}_{k:04d}"
+        if spec.get("rig_jitter"):
+            d["rig_jitter"] = float(spec["rig_jitter"])
+        out.append(validate_recipe(d, f"{source}[{k}]"))
+    return out
+
+
+def relit_recipes(spec: dict, bases: list[dict], source: str = "sample", weather=None) -> list[dict]:
+    """The validated recipes of a `training_layouts` block: scene k takes the family, seed, layout
+    and roadside of one of `bases` (the training recipes; drawn from the scene's stream, among the
+    spec's families if it names any) and draws the rest as `sample_recipes` does: a weather preset
+    other than the base's, new traffic (its own seed), a new ego lane, speed and start."""
+    fams = spec.get("families")
+    bases = [b for b in bases if not fams or b["family"] in fams]
+    if not bases:
+        raise ConfigError(f"{source}.training_layouts: no training scene" + (f" of the families {fams}" if fams else "") + " to take a layout from")
+    presets = spec.get("weather") or list(weather or WEATHER_PRESETS)
+    prefix = spec.get("prefix") or f"s{spec['seed']}"
+    out = []
+    for k in range(spec["count"]):
+        rng = scene_stream(spec["seed"], k)
+        base = bases[int(rng.integers(0, len(bases)))]
+        others = [p for p in presets if p != base["weather"]["preset"]] or presets
+        d = draw_recipe(rng, base["family"], str(rng.choice(others)), spec.get("frames", 4), spec.get("rate_hz", 2.0))
+        d.update(seed=base["seed"], layout=dict(base["layout"]), roadside=dict(base["roadside"]), name=f"{prefix}_{k:04d}")
+        lanes = 1 if base["family"] in ("roundabout", "parking_lot") else base["layout"]["lanes_per_direction"]
+        d["ego"]["lane"] = int(rng.integers(0, lanes))
         if spec.get("rig_jitter"):
             d["rig_jitter"] = float(spec["rig_jitter"])
         out.append(validate_recipe(d, f"{source}[{k}]"))

@@ -1,0 +1,145 @@
+"""Bird's-eye stitch: the images of a rig projected onto the ground plane, on a metric BEV grid.
+
+    python -m dataset_tools stitch IMAGES --rig RIG --out bev.png [--bound 10 --res 0.02]
+    python -m dataset_tools stitch DATA/<scene>/<frame> --out bev.png          # a rendered frame, its own rig
+
+IMAGES is a folder with one image per rig camera (`<camera>.png|jpg`, or `cam_<camera>.png` as our
+frames have them). Every BEV cell centre (x, y, height) is projected into each camera with
+geometry's `project_ego`; the cell takes the bilinear colour of the camera that sees it nearest its
+optical axis. The standard check of a surround-view calibration: straight lines stay straight,
+squares stay square and adjacent cameras agree where they overlap.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from common.cli import ArgumentParser, run_cli
+from common.errors import InputError
+from geometry.bev import BevGrid
+from geometry.rig import Rig, load_rig
+
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
+
+
+class StitchError(InputError):
+    pass
+
+
+def ground_points(grid: BevGrid, height: float = 0.0) -> np.ndarray:
+    """(rows, cols, 3) ego points of the grid's cell centres at z = height."""
+    xy = grid.cell_centres()
+    return np.concatenate([xy, np.full(xy.shape[:2] + (1,), float(height))], -1)
+
+
+def bilinear(image: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """Colours (..., C) of an (H, W, C) image at pixel positions uv (..., 2), centres at integers;
+    positions are clamped to the image."""
+    h, w = image.shape[:2]
+    u = np.clip(uv[..., 0], 0, w - 1)
+    v = np.clip(uv[..., 1], 0, h - 1)
+    u0 = np.minimum(np.floor(u).astype(np.int64), w - 2 if w > 1 else 0)
+    v0 = np.minimum(np.floor(v).astype(np.int64), h - 2 if h > 1 else 0)
+    du, dv = (u - u0)[..., None], (v - v0)[..., None]
+    u1, v1 = np.minimum(u0 + 1, w - 1), np.minimum(v0 + 1, h - 1)
+    img = image.astype(np.float64)
+    top = img[v0, u0] * (1 - du) + img[v0, u1] * du
+    bottom = img[v1, u0] * (1 - du) + img[v1, u1] * du
+    return top * (1 - dv) + bottom * dv
+
+
+def stitch(rig: Rig, images: dict, grid: BevGrid, height: float = 0.0, nearest: bool = False):
+    """-> (bev (rows, cols, C) uint8, source (rows, cols) int: index of the camera in rig order, -1
+    where none sees the cell). An image of another size than its camera is taken as a resize of it.
+    `nearest`: take the nearest pixel (for label images: class ids, one channel or more)."""
+    pts = ground_points(grid, height)
+    best = np.full(grid.shape, np.inf)
+    source = np.full(grid.shape, -1, dtype=np.int64)
+    bev = None
+    for i, rc in enumerate(rig):
+        image = np.asarray(images[rc.name])
+        image = image[..., None] if image.ndim == 2 else image[..., :3]
+        if bev is None:
+            bev = np.zeros(grid.shape + image.shape[2:], dtype=np.float64)
+        cam = rc.camera
+        if image.shape[:2] != (cam.height, cam.width):
+            rc = type(rc)(rc.name, cam.resized(image.shape[1], image.shape[0]), rc.cam_to_ego)
+        uv, valid = rc.project_ego(pts)
+        p_cam = pts @ rc.ego_to_cam[:3, :3].T + rc.ego_to_cam[:3, 3]
+        angle = np.arccos(np.clip(p_cam[..., 2] / np.linalg.norm(p_cam, axis=-1), -1, 1))
+        take = valid & rc.camera.inside(uv) & (angle < best)
+        best = np.where(take, angle, best)
+        source = np.where(take, i, source)
+        if nearest:
+            q = np.rint(uv[take]).astype(np.int64)
+            bev[take] = image[np.clip(q[:, 1], 0, image.shape[0] - 1), np.clip(q[:, 0], 0, image.shape[1] - 1)]
+        else:
+            bev[take] = bilinear(image, uv[take])
+    bev = np.clip(np.rint(bev), 0, 255).astype(np.uint8)
+    return (bev[..., 0] if bev.shape[-1] == 1 else bev), source
+
+
+def read_images(folder: Path, names) -> dict:
+    from PIL import Image
+
+    out = {}
+    for n in names:
+        found = [folder / f"{prefix}{n}{s}" for prefix in ("", "cam_") for s in IMAGE_SUFFIXES]
+        found = [p for p in found if p.is_file()]
+        if not found:
+            raise StitchError(f"{folder}: no image for camera '{n}' (expected {n}.png, {n}.jpg or cam_{n}.png)")
+        try:
+            with Image.open(found[0]) as im:
+                out[n] = np.asarray(im.convert("RGB"))
+        except OSError as exc:
+            raise StitchError(f"{found[0]}: not a readable image ({exc})") from None
+    return out
+
+
+def rig_for(folder: Path, rig_path: str | None) -> Rig:
+    """The --rig file, else the rig a rendered frame folder was rendered with (its meta.json)."""
+    if rig_path:
+        return load_rig(rig_path)
+    from .format.layout import META
+    from .format.meta import read_meta
+
+    if not (folder / META).is_file():
+        raise StitchError(f"{folder}: not a rendered frame (no {META}); give --rig")
+    return read_meta(folder).camera_rig()
+
+
+def main(argv=None) -> int:
+    from common.files import write_bytes_atomic
+
+    p = ArgumentParser(prog="python -m dataset_tools stitch", description="Bird's-eye stitch of a rig's images on the ground plane.")
+    p.add_argument("images", help="a folder with one image per rig camera (<camera>.png|jpg), or a rendered frame folder")
+    p.add_argument("--rig", help="rig file (any format geometry.load_rig reads; default: the rendered frame's own rig)")
+    p.add_argument("--out", required=True, help="output PNG")
+    p.add_argument("--bound", type=float, default=10.0, help="half size of the square grid, metres (default 10)")
+    p.add_argument("--res", type=float, default=0.02, help="cell size, metres (default 0.02)")
+    p.add_argument("--height", type=float, default=0.0, help="height of the plane above the ego origin, metres (default 0)")
+    a = p.parse_args(argv)
+    folder = Path(a.images)
+    if not folder.is_dir():
+        raise StitchError(f"{folder}: no such folder")
+    try:
+        grid = BevGrid.from_dict({"bound": a.bound, "res": a.res})
+    except ValueError as exc:
+        raise StitchError(f"--bound/--res: {exc}") from None
+    rig = rig_for(folder, a.rig)
+    bev, source = stitch(rig, read_images(folder, rig.names), grid, a.height)
+    import io
+
+    from PIL import Image
+
+    buf = io.BytesIO()
+    Image.fromarray(bev).save(buf, format="PNG")
+    write_bytes_atomic(Path(a.out), buf.getvalue())
+    print(f"written {a.out}: {grid.rows}x{grid.cols} cells of {grid.res} m, {100 * np.mean(source >= 0):.0f}% seen")
+    return 0
+
+
+if __name__ == "__main__":
+    run_cli(main)
