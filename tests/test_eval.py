@@ -182,7 +182,8 @@ def test_eval_of_a_trained_checkpoint_equals_a_recomputation_from_its_prediction
     assert r.returncode == 0, r.stderr[-2000:]
     cmp = json.loads((cmp_out / "comparison.json").read_text())
     diff = cmp["splits"]["train"]["difference"]
-    assert cmp["splits"]["train"]["scenes"] == 7 and set(diff) == set(res["overall"])
+    # every score but the markings' tolerance IoU, which has no per-scene confusion to pair
+    assert cmp["splits"]["train"]["scenes"] == 7 and set(diff) == set(res["overall"]) - {"iou_tol/lane_marking"}
     for key, d in diff.items():
         assert d["diff"] == 0.0 and d["low"] == 0.0 and d["high"] == 0.0, key
         assert d["a"] == pytest.approx(res["overall"][key], nan_ok=True), key
