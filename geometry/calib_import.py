@@ -283,7 +283,7 @@ def _kalibr_camera(c: dict, source: str, step: int) -> tuple[Camera, float]:
     dist = c.get("distortion_model", "none")
     w, h = (int(v) for v in _numbers(c.get("resolution"), source, "resolution", 2))
     k = _numbers(c.get("distortion_coeffs", []), source, "distortion_coeffs")
-    if dist in ("none", None) or not np.any(k):
+    if dist is None or (dist == "radtan" and not np.any(k)):  # radtan of zeros is no distortion; equidistant of zeros is not
         dist = "none"
     base = {"width": w, "height": h}
     if model == "pinhole":
@@ -407,6 +407,8 @@ def import_calibration(path, fmt: str | None = None, camera: str | None = None) 
         if camera not in cams:
             raise CalibrationError(f"{path}: camera: {camera!r} is not in the camchain (has: {', '.join(cams)})")
         return cams[camera]
+    if fmt == "woodscape":
+        raise CalibrationError(f"{path}: WoodScape calibrations are read by geometry.rig.load_rig (or a rig file's 'calibration:')")
     raise CalibrationError(f"{path}: format: {fmt!r} is not one of {', '.join(FORMATS)}")
 
 

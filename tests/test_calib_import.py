@@ -160,6 +160,14 @@ def test_kalibr_camchain(tmp_path):
     assert c3.camera.model == "opencv_fisheye" and 0 < c3.residual_px < 5.0
 
 
+def test_kalibr_pinhole_equi_with_zero_coefficients_is_equidistant(tmp_path):
+    path = _write(tmp_path / "camchain.yaml", CAMCHAIN.replace("[-0.0132, 0.0341, -0.0421, 0.0155]", "[0.0, 0.0, 0.0, 0.0]"))
+    cam = kalibr_cameras(path)["cam0"].camera
+    equi = camera_from_dict({"model": "equidistant", "width": 640, "height": 480, "fx": 280.1, "fy": 281.2, "cx": 321.4, "cy": 241.7})
+    p = _points_in_front(200, 100)
+    assert np.abs(cam.project(p)[0] - equi.project(p)[0]).max() < 1e-9
+
+
 def test_kalibr_bad_field(tmp_path):
     path = _write(tmp_path / "camchain.yaml", CAMCHAIN.replace("camera_model: ds", "camera_model: fov"))
     with pytest.raises(CalibrationError, match=r"camchain.yaml: cam2: camera_model: 'fov' is not one of"):
