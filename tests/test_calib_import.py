@@ -62,6 +62,20 @@ def test_opencv_filestorage_written_by_cv2_yaml_and_json(tmp_path):
                                  "cy": 322.5, "k": D.ravel().tolist()}
 
 
+def test_opencv_fisheye_round_trip_through_cv2(tmp_path):
+    """ours -> FileStorage YAML -> cv2.FileStorage and ours again: the same numbers, the same pixels."""
+    from geometry.calib_import import opencv_fisheye_yaml
+
+    cam = opencv_fisheye_camera(SV / "left.yaml")
+    path = _write(tmp_path / "out.yaml", opencv_fisheye_yaml(cam))
+    fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
+    K, D = fs.getNode("K").mat(), fs.getNode("D").mat()
+    assert (int(fs.getNode("image_width").real()), int(fs.getNode("image_height").real())) == (cam.width, cam.height)
+    np.testing.assert_array_equal(K, [[cam.fx, 0, cam.cx], [0, cam.fy, cam.cy], [0, 0, 1]])
+    np.testing.assert_array_equal(D.ravel(), cam.k)
+    assert opencv_fisheye_camera(path) == cam
+
+
 def test_opencv_bad_files_are_one_line_naming_the_field(tmp_path):
     bad = tmp_path / "bad.yaml"
     bad.write_text((SV / "front.yaml").read_text().replace("dist_coeffs", "distortion"))
@@ -71,7 +85,7 @@ def test_opencv_bad_files_are_one_line_naming_the_field(tmp_path):
     with pytest.raises(CalibrationError, match=r"bad.yaml: dist_coeffs: rows x cols = 8, but data has 4"):
         opencv_fisheye_camera(bad)
     with pytest.raises(CalibrationError, match="cannot tell its format"):
-        import_calibration(tmp_path / "nothing.txt2" if False else _write(tmp_path / "x.yaml", "a: 1\n"))
+        import_calibration(_write(tmp_path / "x.yaml", "a: 1\n"))
 
 
 def _write(path, text):
