@@ -88,6 +88,16 @@ class RigModel:
         return predict(self.model, batch)
 
 
+def rig_of_images(rig: Rig, images: dict) -> Rig:
+    """The rig with each camera resized to its image (an image of another size than its calibration
+    is a resize of it: its camera goes with it)."""
+    def fit(rc):
+        h, w = images[rc.name].shape[:2]
+        return rc.camera if (h, w) == (rc.camera.height, rc.camera.width) else rc.camera.resized(w, h)
+
+    return Rig([RigCamera(rc.name, fit(rc), rc.cam_to_ego) for rc in rig], rig.name)
+
+
 def save_prediction(path: Path, pred: Prediction) -> None:
     buf = io.BytesIO()
     np.savez_compressed(buf, semantic=pred.classes[0].numpy().astype(np.uint8), visibility=pred.visibility[0].numpy().astype(np.float32),
@@ -151,10 +161,9 @@ def main(argv=None) -> int:
     class_names = list(TRAIN_CLASSES)[: ckpt["num_classes"]]
     rig_models: dict = {}
     for frame in frames:
-        images = read_images(frame, (rig := rig_for(frame, a.rig)).names)
-        # an image of another size than its calibration is a resize of it: its camera goes with it
-        rig = Rig([RigCamera(rc.name, rc.camera if images[rc.name].shape[:2] == (rc.camera.height, rc.camera.width)
-                             else rc.camera.resized(images[rc.name].shape[1], images[rc.name].shape[0]), rc.cam_to_ego) for rc in rig], rig.name)
+        rig = rig_for(frame, a.rig)
+        images = read_images(frame, rig.names)
+        rig = rig_of_images(rig, images)
         key = str(rig.to_dict())
         if key not in rig_models:
             rig_models[key] = RigModel(model, cfg, ckpt["rig"], rig)

@@ -148,6 +148,22 @@ def opencv_fisheye_camera(path, width: int | None = None, height: int | None = N
         raise CalibrationError(f"{path}: {exc}") from None
 
 
+def opencv_fisheye_yaml(camera: Camera) -> str:
+    """An `opencv_fisheye` camera as the FileStorage YAML cv2 reads (`K`, `D`, `image_width`,
+    `image_height`): the way back to cv2.fisheye (numbers written with 17 significant digits: exact)."""
+    if camera.model != "opencv_fisheye":
+        raise CalibrationError(f"{camera.model}: only an opencv_fisheye camera is cv2.fisheye's model")
+
+    def matrix(name, rows, cols, data):
+        return (f"{name}: !!opencv-matrix\n   rows: {rows}\n   cols: {cols}\n   dt: d\n"
+                f"   data: [ {', '.join(repr(float(v)) for v in data)} ]\n")
+
+    p = camera.params
+    k = [p["fx"], 0.0, p["cx"], 0.0, p["fy"], p["cy"], 0.0, 0.0, 1.0]
+    return ("%YAML:1.0\n---\n" + matrix("K", 3, 3, k) + matrix("D", 4, 1, p["k"])
+            + f"image_width: {camera.width}\nimage_height: {camera.height}\n")
+
+
 # ---------------------------------------------------------------- fitting a source model we do not have
 
 
@@ -283,7 +299,7 @@ def _kalibr_camera(c: dict, source: str, step: int) -> tuple[Camera, float]:
     dist = c.get("distortion_model", "none")
     w, h = (int(v) for v in _numbers(c.get("resolution"), source, "resolution", 2))
     k = _numbers(c.get("distortion_coeffs", []), source, "distortion_coeffs")
-    if dist in ("none", None) or not np.any(k):
+    if dist is None or (dist == "radtan" and not np.any(k)):  # radtan of zeros is no distortion; equidistant of zeros is not
         dist = "none"
     base = {"width": w, "height": h}
     if model == "pinhole":
@@ -407,6 +423,8 @@ def import_calibration(path, fmt: str | None = None, camera: str | None = None) 
         if camera not in cams:
             raise CalibrationError(f"{path}: camera: {camera!r} is not in the camchain (has: {', '.join(cams)})")
         return cams[camera]
+    if fmt == "woodscape":
+        raise CalibrationError(f"{path}: WoodScape calibrations are read by geometry.rig.load_rig (or a rig file's 'calibration:')")
     raise CalibrationError(f"{path}: format: {fmt!r} is not one of {', '.join(FORMATS)}")
 
 

@@ -537,3 +537,53 @@ add("eval-config-bomb", "eval", lambda ctx: evaluate("--config", str(ctx.write("
 def _(ctx):
     ctx.out_is_a_file()
     return ["--checkpoint", str(ctx.checkpoint), "--out", str(ctx.out), "--data", str(ctx.ds())]
+
+
+
+# ------------------------------------------------------------------ stitch, export-woodscape (issue 24)
+
+def _first_frame(ds):
+    return ds / json.loads((ds / "manifest.jsonl").read_text().splitlines()[0])["dir"]
+
+
+def _stitch_with_rig(rig_text, **files):
+    def build(ctx):
+        for name, text in files.items():
+            ctx.write(f"r/{name}.yaml", text)
+        return [str(_first_frame(ctx.ds())), "--out", str(ctx.out / "bev.png"), "--rig", str(ctx.write("r/rig.yaml", rig_text))]
+    return build
+
+
+add("stitch-no-folder", "stitch", lambda ctx: [str(ctx.ws / "nowhere"), "--out", str(ctx.out / "bev.png")], needles=("nowhere", "no such folder"))
+add("stitch-no-rig", "stitch", lambda ctx: [str(ctx.write("imgs/front.png", b"x").parent), "--out", str(ctx.out / "bev.png")],
+    needles=("imgs", "give --rig"))
+add("stitch-rig-calibration-missing", "stitch",
+    _stitch_with_rig("cameras:\n  front: {calibration: gone.yaml, extrinsics: {translation: [0, 0, 1], rotation: {}}}\n"),
+    needles=("rig.yaml", "cameras.front", "gone.yaml"))
+add("stitch-rig-kalibr-bad-model", "stitch",
+    _stitch_with_rig("cameras:\n  front: {calibration: chain.yaml, camera: cam0}\n",
+                     chain="cam0:\n  camera_model: fov\n  intrinsics: [1, 1, 1, 1]\n  resolution: [64, 40]\n"),
+    needles=("chain.yaml", "cam0", "camera_model"))
+add("stitch-rig-opencv-no-distortion", "stitch",
+    _stitch_with_rig("cameras:\n  front: {calibration: cv.yaml, extrinsics: {translation: [0, 0, 1], rotation: {}}}\n",
+                     cv="K: [[20, 0, 31.5], [0, 20, 19.5], [0, 0, 1]]\nimage_size: [64, 40]\n"),
+    needles=("cv.yaml", "distortion coefficients"))
+add("stitch-rig-not-a-rig", "stitch", lambda ctx: [str(ctx.write("imgs/front.png", b"x").parent), "--out", str(ctx.out / "bev.png"),
+                                                   "--rig", str(_first_frame(ctx.ds()) / "meta.json")],
+    needles=("meta.json",))
+add("stitch-res-not-whole", "stitch", lambda ctx: [str(_first_frame(ctx.ds())), "--out", str(ctx.out / "bev.png"), "--res", "0.3"],
+    needles=("--bound/--res",))
+add("export-woodscape-no-index", "export-woodscape", lambda ctx: [str(ctx.ws / "empty"), str(ctx.out)], needles=("index.json", "missing"))
+
+
+@case("export-woodscape-exr-missing", "export-woodscape", needles=("cam_front.exr",))
+def _(ctx):
+    ds = ctx.ds()
+    (_first_frame(ds) / "cam_front.exr").unlink()
+    return [str(ds), str(ctx.out)]
+
+
+@case("export-woodscape-out-is-a-file", "export-woodscape", needles=("OUT", "is a file"))
+def _(ctx):
+    ctx.out_is_a_file()
+    return [str(ctx.ds()), str(ctx.out)]

@@ -62,6 +62,20 @@ def test_opencv_filestorage_written_by_cv2_yaml_and_json(tmp_path):
                                  "cy": 322.5, "k": D.ravel().tolist()}
 
 
+def test_opencv_fisheye_round_trip_through_cv2(tmp_path):
+    """ours -> FileStorage YAML -> cv2.FileStorage and ours again: the same numbers, the same pixels."""
+    from geometry.calib_import import opencv_fisheye_yaml
+
+    cam = opencv_fisheye_camera(SV / "left.yaml")
+    path = _write(tmp_path / "out.yaml", opencv_fisheye_yaml(cam))
+    fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
+    K, D = fs.getNode("K").mat(), fs.getNode("D").mat()
+    assert (int(fs.getNode("image_width").real()), int(fs.getNode("image_height").real())) == (cam.width, cam.height)
+    np.testing.assert_array_equal(K, [[cam.fx, 0, cam.cx], [0, cam.fy, cam.cy], [0, 0, 1]])
+    np.testing.assert_array_equal(D.ravel(), cam.k)
+    assert opencv_fisheye_camera(path) == cam
+
+
 def test_opencv_bad_files_are_one_line_naming_the_field(tmp_path):
     bad = tmp_path / "bad.yaml"
     bad.write_text((SV / "front.yaml").read_text().replace("dist_coeffs", "distortion"))
@@ -71,7 +85,7 @@ def test_opencv_bad_files_are_one_line_naming_the_field(tmp_path):
     with pytest.raises(CalibrationError, match=r"bad.yaml: dist_coeffs: rows x cols = 8, but data has 4"):
         opencv_fisheye_camera(bad)
     with pytest.raises(CalibrationError, match="cannot tell its format"):
-        import_calibration(tmp_path / "nothing.txt2" if False else _write(tmp_path / "x.yaml", "a: 1\n"))
+        import_calibration(_write(tmp_path / "x.yaml", "a: 1\n"))
 
 
 def _write(path, text):
@@ -158,6 +172,14 @@ def test_kalibr_camchain(tmp_path):
     # radtan is not radial: fitted, and the residual says how well
     c3 = cams["cam3"]
     assert c3.camera.model == "opencv_fisheye" and 0 < c3.residual_px < 5.0
+
+
+def test_kalibr_pinhole_equi_with_zero_coefficients_is_equidistant(tmp_path):
+    path = _write(tmp_path / "camchain.yaml", CAMCHAIN.replace("[-0.0132, 0.0341, -0.0421, 0.0155]", "[0.0, 0.0, 0.0, 0.0]"))
+    cam = kalibr_cameras(path)["cam0"].camera
+    equi = camera_from_dict({"model": "equidistant", "width": 640, "height": 480, "fx": 280.1, "fy": 281.2, "cx": 321.4, "cy": 241.7})
+    p = _points_in_front(200, 100)
+    assert np.abs(cam.project(p)[0] - equi.project(p)[0]).max() < 1e-9
 
 
 def test_kalibr_bad_field(tmp_path):

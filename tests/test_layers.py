@@ -11,7 +11,7 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 CONFIG = ROOT / ".importlinter"
-ENTRY_SCRIPTS = ("train", "eval", "demo")
+ENTRY_SCRIPTS = ("train", "eval", "demo", "predict")
 
 
 def _contract_ids():

@@ -57,3 +57,17 @@ def test_predict_bad_input_is_one_line(tmp_path):
     r = subprocess.run([sys.executable, "predict.py", "--checkpoint", tmp_path / "none.pt", "--frames", tmp_path / "nothing",
                         "--out", tmp_path / "o"], cwd=ROOT, capture_output=True, text=True, timeout=120)
     assert r.returncode != 0 and "nothing: no such folder" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_images_of_another_size_bring_their_camera():
+    import predict
+    from geometry.rig import load_rig
+
+    rig = load_rig(SV / "rig.yaml")
+    half = predict.rig_of_images(rig, {n: np.zeros((320, 480, 3), np.uint8) for n in rig.names})
+    for n in rig.names:
+        a, b = rig[n].camera, half[n].camera
+        assert (b.width, b.height) == (480, 320) and b.fx == a.fx / 2 and b.cx == (a.cx + 0.5) / 2 - 0.5 and b.k == a.k
+        np.testing.assert_array_equal(half[n].cam_to_ego, rig[n].cam_to_ego)
+    same = predict.rig_of_images(rig, {n: np.zeros((640, 960, 3), np.uint8) for n in rig.names})
+    assert same.to_dict() == rig.to_dict()
