@@ -268,11 +268,11 @@ def bench_rectify(repeat: int = 10) -> dict:
     return {"rectify_ms_per_frame": ms, "rectify_tables_s_per_rig": setup}
 
 
-def _in_child(fn: str, *args, root: Path = ROOT) -> dict:
+def _in_child(fn: str, *args, root: Path = ROOT, env: dict | None = None) -> dict:
     """bench.model.<fn>(*args) in a fresh process, with the code at `root` (this checkout, or a
     baseline commit's copy)."""
     code = f"import json, bench.model as m; print('@@' + json.dumps(m.{fn}(*{args!r})))"
-    r = subprocess.run([sys.executable, "-c", code], cwd=root, env=dict(os.environ, PYTHONPATH=str(root)),
+    r = subprocess.run([sys.executable, "-c", code], cwd=root, env=dict(os.environ, PYTHONPATH=str(root), **(env or {})),
                        capture_output=True, text=True, timeout=1200)
     if r.returncode:
         raise RuntimeError(f"bench.model.{fn} failed{' at ' + str(root) if root != ROOT else ''}: "
@@ -291,17 +291,18 @@ def checkout(commit: str, dest: Path) -> Path:
     return dest
 
 
-def versus(children: list[tuple], baseline_root: Path, rounds: int) -> dict:
+def versus(children: list[tuple], baseline_root: Path, rounds: int, env: dict | None = None) -> dict:
     """Each child (fn, *args) run `rounds` times with this checkout's code and the baseline's,
     alternating (ABBA...), so load on a shared machine hits both alike; -> this checkout's and the
-    baseline's median figures and the median of the per-pair ratios (ours / baseline)."""
+    baseline's median figures and the median of the per-pair ratios (ours / baseline). env: extra
+    environment of both (OMP_NUM_THREADS=1 compares the code at equal threads)."""
     out = {}
     for fn, *args in children:
         ours, base = [], []
         for r in range(rounds):
             order = [(ours, ROOT), (base, baseline_root)]
             for dest, root in (order if r % 2 == 0 else order[::-1]):
-                dest.append(_in_child(fn, *args, root=root))
+                dest.append(_in_child(fn, *args, root=root, env=env))
         for key in ours[0]:
             if "rss" in key:
                 out[key] = statistics.median(o[key] for o in ours)
@@ -312,7 +313,7 @@ def versus(children: list[tuple], baseline_root: Path, rounds: int) -> dict:
     return out
 
 
-def run(train_steps: int = 12, infer_repeat: int = 20, baseline: str | None = None, rounds: int = 3) -> dict:
+def run(train_steps: int = 12, infer_repeat: int = 20, baseline: str | None = None, rounds: int = 2) -> dict:
     """baseline: a commit of this repository whose training and inference figures are measured in
     the same run, alternating with this checkout's (figures *_baseline and *_ratio)."""
     from testing.toy_data import write_toy_dataset
@@ -341,7 +342,7 @@ if __name__ == "__main__":
 
     ap = argparse.ArgumentParser()
     ap.add_argument("--baseline", help="a commit to measure alongside (e.g. 1fef02b)")
-    ap.add_argument("--rounds", type=int, default=3)
+    ap.add_argument("--rounds", type=int, default=2)
     a = ap.parse_args()
     out = run(baseline=a.baseline, rounds=a.rounds)
     for k, v in out.items():

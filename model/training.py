@@ -147,7 +147,7 @@ def prepare(cfg: dict, out: Path, quiet: bool = False) -> Run:
         raise DataError(f"{index.root}: split '{cfg['data']['train_split']}' has {len(train_ds)} frames, fewer than train.batch_size {t['batch_size']}")
     torch.manual_seed(t["seed"])
     model = build_model(cfg, index.rig, len(index.class_names)).to(device)
-    tune_cpu(cfg, device, model, world)
+    tune_cpu(cfg, device, model, int(os.environ.get("LOCAL_WORLD_SIZE", world)))  # processes on this machine
     if world > 1 and cfg["model"]["norm"] == "batch" and device.type == "cuda":
         # batch statistics over the global batch (on CPU, BatchNorm stays per process; GroupNorm,
         # the default, needs neither)
