@@ -42,13 +42,17 @@ def loader_parts(ds, indices) -> dict:
         t1 = time.perf_counter()
         frustum, rectify = ds.geometry_of(ref, f["meta"])
         rng = np.random.default_rng([0, 0, i])
-        tr = [random_transform(rc.camera, ds.input_size, rng, a["scale"], a["rotation_deg"], a["crop"]) for rc in frustum.rig]
-        frustum.geometry(tr)
+        if a:
+            tr = [random_transform(rc.camera, ds.input_size, rng, a["scale"], a["rotation_deg"], a["crop"]) for rc in frustum.rig]
+            frustum.geometry(tr)
+        else:
+            tr = frustum.nominal_transforms()
         t2 = time.perf_counter()
         imgs = [warp_image(f["images"][rc.name], rc.camera, t) for rc, t in zip(frustum.rig, tr)]
         images = torch.from_numpy(np.stack(imgs)).permute(0, 3, 1, 2).float() / 255.0
         t3 = time.perf_counter()
-        ds.jitter(images)
+        if ds.jitter is not None:
+            ds.jitter(images)
         t4 = time.perf_counter()
         ds[i]
         t5 = time.perf_counter()
