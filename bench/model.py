@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import json
 import os
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -28,6 +29,13 @@ GOALS = {
     "splat_speedup_vs_cumsum": ">= 5",
     "train_samples_per_s": ">= 4",
     "infer_ms_per_frame": "<= 60",
+}
+BASELINE = "1fef02b"  # main after issue 20, before issue 23's speed work: `make bench` measures it alongside
+RATIO_GOALS = {  # issue 23: against the baseline, measured in the same run
+    "train_samples_per_s_ratio": ">= 2.0",
+    "train_samples_per_s_efficientnet_lite0_ratio": ">= 2.0",
+    "infer_ms_per_frame_ratio": "<= 0.8",
+    "infer_ms_per_frame_efficientnet_lite0_ratio": "<= 0.8",
 }
 
 
@@ -182,14 +190,17 @@ def _peak_rss_mb() -> float:
 
 
 def _child_train(data_root: str, steps: int, trunk: str = "scratch") -> dict:
+    """Training samples/s of cpu_default as model.training sets it up (threads, memory format,
+    optimiser, loader), on the data set at data_root; the first step (loader start) not counted."""
     from torch.utils.data import DataLoader
 
     from dataset_tools.format.reader import DatasetIndex
     from model import build_model
     from model.config import load_config
+    from model.cpu import tune_cpu
     from model.data import BevDataset
     from model.losses import class_weights, total_loss
-    from model.training import EpochBatches
+    from model.training import EpochBatches, make_optimizer
 
     cfg = load_config(ROOT / "configs/train/cpu_default.yaml", {"data": {"root": data_root}, "model": {"trunk": trunk}})
     t = cfg["train"]
@@ -197,7 +208,8 @@ def _child_train(data_root: str, steps: int, trunk: str = "scratch") -> dict:
     ds = BevDataset(idx, "train", cfg, train=True)
     torch.manual_seed(0)
     model = build_model(cfg, idx.rig)
-    opt = torch.optim.Adam(model.parameters(), lr=t["lr"])
+    tune_cpu(cfg, torch.device("cpu"), model)
+    opt = make_optimizer(cfg, model)
     alpha = class_weights(cfg["loss"]["class_weights"])
     loader = DataLoader(ds, batch_sampler=EpochBatches(len(ds), t["batch_size"], 0, 0, 0, 1),
                         num_workers=cfg["data"]["num_workers"], generator=torch.Generator())
@@ -220,13 +232,17 @@ def _child_train(data_root: str, steps: int, trunk: str = "scratch") -> dict:
 
 
 def _child_infer(repeat: int, trunk: str = "scratch") -> dict:
+    """Inference ms per four-camera frame of cpu_default, set up as a run of the config is
+    (model.cpu: threads for the config's loader workers, memory format)."""
     from geometry.rig import load_rig
     from model import build_model
     from model.config import load_config
+    from model.cpu import tune_cpu
 
     cfg = load_config(ROOT / "configs/train/cpu_default.yaml", {"model": {"trunk": trunk}})
     torch.manual_seed(0)
     model = build_model(cfg, load_rig(ROOT / "configs/rigs/default.yaml")).eval()
+    tune_cpu(cfg, torch.device("cpu"), model)
     w, h = cfg["data"]["input_size"]
     x = torch.rand(1, 4, 3, h, w)
     with torch.inference_mode():
@@ -252,33 +268,82 @@ def bench_rectify(repeat: int = 10) -> dict:
     return {"rectify_ms_per_frame": ms, "rectify_tables_s_per_rig": setup}
 
 
-def _in_child(fn: str, *args) -> dict:
+def _in_child(fn: str, *args, root: Path = ROOT, env: dict | None = None) -> dict:
+    """bench.model.<fn>(*args) in a fresh process, with the code at `root` (this checkout, or a
+    baseline commit's copy)."""
     code = f"import json, bench.model as m; print('@@' + json.dumps(m.{fn}(*{args!r})))"
-    r = subprocess.run([sys.executable, "-c", code], cwd=ROOT, env=dict(os.environ, PYTHONPATH=str(ROOT)),
+    r = subprocess.run([sys.executable, "-c", code], cwd=root, env=dict(os.environ, PYTHONPATH=str(root), **(env or {})),
                        capture_output=True, text=True, timeout=1200)
     if r.returncode:
-        raise RuntimeError(f"bench.model.{fn} failed: {r.stderr.strip().splitlines()[-1] if r.stderr.strip() else r.returncode}")
+        raise RuntimeError(f"bench.model.{fn} failed{' at ' + str(root) if root != ROOT else ''}: "
+                           f"{r.stderr.strip().splitlines()[-1] if r.stderr.strip() else r.returncode}")
     return json.loads([ln for ln in r.stdout.splitlines() if ln.startswith("@@")][-1][2:])
 
 
-def run(train_steps: int = 12, infer_repeat: int = 20) -> dict:
+def checkout(commit: str, dest: Path) -> Path:
+    """The tree of `commit` (of this repository) written to dest (git archive: no worktree to clean up)."""
+    dest.mkdir(parents=True, exist_ok=True)
+    try:
+        archive = subprocess.run(["git", "-C", str(ROOT), "archive", commit], capture_output=True, check=True).stdout
+    except subprocess.CalledProcessError as exc:
+        raise RuntimeError(f"baseline: git archive {commit} failed: {exc.stderr.decode().strip()[:200]}") from None
+    subprocess.run(["tar", "-x", "-C", str(dest)], input=archive, check=True)
+    return dest
+
+
+def versus(children: list[tuple], baseline_root: Path, rounds: int, env: dict | None = None) -> dict:
+    """Each child (fn, *args) run `rounds` times with this checkout's code and the baseline's,
+    alternating (ABBA...), so load on a shared machine hits both alike; -> this checkout's and the
+    baseline's median figures and the median of the per-pair ratios (ours / baseline). env: extra
+    environment of both (OMP_NUM_THREADS=1 compares the code at equal threads)."""
+    out = {}
+    for fn, *args in children:
+        ours, base = [], []
+        for r in range(rounds):
+            order = [(ours, ROOT), (base, baseline_root)]
+            for dest, root in (order if r % 2 == 0 else order[::-1]):
+                dest.append(_in_child(fn, *args, root=root, env=env))
+        for key in ours[0]:
+            if "rss" in key:
+                out[key] = statistics.median(o[key] for o in ours)
+                continue
+            out[key] = statistics.median(o[key] for o in ours)
+            out[f"{key}_baseline"] = statistics.median(b[key] for b in base)
+            out[f"{key}_ratio"] = statistics.median(o[key] / b[key] for o, b in zip(ours, base))
+    return out
+
+
+def run(train_steps: int = 12, infer_repeat: int = 20, baseline: str | None = None, rounds: int = 2) -> dict:
+    """baseline: a commit of this repository whose training and inference figures are measured in
+    the same run, alternating with this checkout's (figures *_baseline and *_ratio)."""
     from testing.toy_data import write_toy_dataset
 
     res = {"threads": torch.get_num_threads(), "load_average_1min_at_start": os.getloadavg()[0]}
     res.update(bench_splat(sum_cameras=True))
     res.update(bench_splat(sum_cameras=False))
+    trunks = ("scratch", "efficientnet_lite0")
     with tempfile.TemporaryDirectory() as tmp:
         root = write_toy_dataset(Path(tmp) / "toy", frames=4 * (train_steps + 1), splits=("train",))
-        for trunk in ("scratch", "efficientnet_lite0"):
-            res.update(_in_child("_child_train", str(root), train_steps, trunk))
-    for trunk in ("scratch", "efficientnet_lite0"):
-        res.update(_in_child("_child_infer", infer_repeat, trunk))
+        children = [("_child_train", str(root), train_steps, t) for t in trunks] + [("_child_infer", infer_repeat, t) for t in trunks]
+        if baseline:
+            res["baseline_commit"] = baseline
+            res.update(versus(children, checkout(baseline, Path(tmp) / "baseline"), rounds))
+        else:
+            for fn, *args in children:
+                res.update(_in_child(fn, *args))
     res.update(bench_rectify())
-    res["goals"] = GOALS
+    res["load_average_1min_at_end"] = os.getloadavg()[0]
+    res["goals"] = dict(GOALS, **(RATIO_GOALS if baseline else {}))
     return res
 
 
 if __name__ == "__main__":
-    out = run()
+    import argparse
+
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--baseline", help="a commit to measure alongside (e.g. 1fef02b)")
+    ap.add_argument("--rounds", type=int, default=2)
+    a = ap.parse_args()
+    out = run(baseline=a.baseline, rounds=a.rounds)
     for k, v in out.items():
         print(f"{k:32s} {v:.4g}" if isinstance(v, float) else f"{k:32s} {v}")

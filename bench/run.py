@@ -26,6 +26,9 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--only", nargs="*", help="module names (e.g. geometry model)")
     ap.add_argument("--out", type=Path, default=OUT)
+    ap.add_argument("--baseline", default=None,
+                    help="commit whose training/inference figures the model part measures alongside, as ratios "
+                         "(default: bench.model.BASELINE; 'none' to skip)")
     args = ap.parse_args(argv)
     results, failed = {}, False
     for name in MODULES:
@@ -41,7 +44,7 @@ def main(argv=None) -> int:
             raise
         print(f"bench: {short} ...", flush=True)
         try:
-            figures = normalise(mod.run())
+            figures = normalise(mod.run(**_options(short, args)))
             results[short] = {"figures": figures, "seconds": round(time.perf_counter() - t0, 1)}
         except Exception as exc:  # noqa: BLE001 - a bench failure is reported in the table
             results[short] = {"error": f"{type(exc).__name__}: {exc}"}
@@ -53,6 +56,15 @@ def main(argv=None) -> int:
     print(to_markdown(meta, results))
     print(f"written {args.out / 'results.json'} and {args.out / 'results.md'}")
     return 1 if failed else 0
+
+
+def _options(part: str, args) -> dict:
+    if part != "model":
+        return {}
+    from bench.model import BASELINE
+
+    baseline = BASELINE if args.baseline is None else args.baseline
+    return {"baseline": None if baseline.lower() == "none" else baseline}
 
 
 def normalise(figures: dict) -> dict:

@@ -79,6 +79,7 @@ class EfficientNetLite0Encoder(nn.Module):
     """Same interface as model.encoder.ImageEncoder: images -> (depth logits, context) at stride s."""
 
     total_stride = 32
+    keep_contiguous = True  # model.cpu leaves it NCHW: its NHWC backward rounds 20x worse
 
     def __init__(self, stride: int = 8, depth_bins: int = 32, context_channels: int = 32, width: int = 128,
                  norm: str = "group", dropout: float = 0.0):

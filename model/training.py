@@ -31,6 +31,7 @@ from common.schema import deep_merge
 from dataset_tools import DatasetIndex, colorize_train
 
 from .checkpoint import CheckpointError, build_model, load_weights, read_checkpoint, save_checkpoint
+from .cpu import tune_cpu
 from .data import BevDataset, DataError
 from .evaluation import validation_scores
 from .losses import class_weights, total_loss
@@ -130,12 +131,17 @@ def setup_distributed(device_kind: str):
     return rank, world, device
 
 
+def make_optimizer(cfg: dict, model: torch.nn.Module) -> torch.optim.Optimizer:
+    t = cfg["train"]
+    return torch.optim.Adam(model.parameters(), lr=t["lr"], weight_decay=t["weight_decay"])
+
+
 def prepare(cfg: dict, out: Path, quiet: bool = False) -> Run:
     """Data sets, model and optimiser of a fresh run (seeded)."""
     t = cfg["train"]
-    if t["threads"]:
-        torch.set_num_threads(t["threads"])
     rank, world, device = setup_distributed(t["device"])
+    if t["threads"] and device.type != "cpu":
+        torch.set_num_threads(t["threads"])
     if t["batch_size"] % world:
         raise ConfigError(f"train.batch_size: {t['batch_size']} is not divisible by {world} processes")
     index = DatasetIndex(cfg["data"]["root"])
@@ -148,11 +154,12 @@ def prepare(cfg: dict, out: Path, quiet: bool = False) -> Run:
         raise DataError(f"{index.root}: split '{cfg['data']['train_split']}' has {len(train_ds)} frames, fewer than train.batch_size {t['batch_size']}")
     torch.manual_seed(t["seed"])
     model = build_model(cfg, index.rig, len(index.class_names)).to(device)
+    tune_cpu(cfg, device, model, int(os.environ.get("LOCAL_WORLD_SIZE", world)))  # processes on this machine
     if world > 1 and cfg["model"]["norm"] == "batch" and device.type == "cuda":
         # batch statistics over the global batch (on CPU, BatchNorm stays per process; GroupNorm,
         # the default, needs neither)
         model = torch.nn.SyncBatchNorm.convert_sync_batchnorm(model)
-    opt = torch.optim.Adam(model.parameters(), lr=t["lr"], weight_decay=t["weight_decay"])
+    opt = make_optimizer(cfg, model)
     return Run(cfg, out, rank, world, device, index, train_ds, val_ds, model, opt, quiet)
 
 

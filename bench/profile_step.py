@@ -1,0 +1,154 @@
+"""Where a `cpu_default` training step spends its time (issue 23), on a data set of yours.
+
+    PYTHONPATH=. python -m bench.profile_step DATA_ROOT [--steps 20] [--trunk scratch] [--set k=v ...]
+
+Runs the training step as model.training does (same loader, model, loss, optimiser), but splits
+the backward at the trunk's and the splat's outputs so that each part's forward and backward is
+timed on its own (the gradients are the same), and times the loader's parts (decoding,
+augmentation, lift geometry) on the same samples in this process. Prints a table of median
+milliseconds per step, then torch.profiler's top operators over the same steps.
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch.utils.data import DataLoader
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _ms(ts):
+    return 1000 * statistics.median(ts) if ts else float("nan")
+
+
+def loader_parts(ds, indices) -> dict:
+    """Per-sample costs of BevDataset.__getitem__'s parts, in this process."""
+    from dataset_tools.format.reader import read_frame
+
+    from model.augment import random_transform, warp_image
+
+    parts = {"decode": [], "lift geometry": [], "warp": [], "colour jitter": [], "whole sample": []}
+    a = ds.augment
+    for i in indices:
+        ref = ds.refs[i]
+        t0 = time.perf_counter()
+        f = read_frame(ref, cameras=ds.names, num_classes=len(ds.class_names))
+        t1 = time.perf_counter()
+        frustum, rectify = ds.geometry_of(ref, f["meta"])
+        rng = np.random.default_rng([0, 0, i])
+        if a:
+            tr = [random_transform(rc.camera, ds.input_size, rng, a["scale"], a["rotation_deg"], a["crop"]) for rc in frustum.rig]
+            frustum.geometry(tr)
+        else:
+            tr = frustum.nominal_transforms()
+        t2 = time.perf_counter()
+        imgs = [warp_image(f["images"][rc.name], rc.camera, t) for rc, t in zip(frustum.rig, tr)]
+        images = torch.from_numpy(np.stack(imgs)).permute(0, 3, 1, 2).float() / 255.0
+        t3 = time.perf_counter()
+        if ds.jitter is not None:
+            ds.jitter(images)
+        t4 = time.perf_counter()
+        ds[i]
+        t5 = time.perf_counter()
+        for k, v in zip(parts, (t1 - t0, t2 - t1, t3 - t2, t4 - t3, t5 - t4)):
+            parts[k].append(v)
+    return {k: _ms(v) for k, v in parts.items()}
+
+
+def main(argv=None):
+    from common.schema import deep_merge
+    from dataset_tools import DatasetIndex
+    from model import build_model
+    from model.config import load_config, parse_overrides
+    from model.data import BevDataset
+    from model.losses import class_weights, total_loss
+    from model.splat import splat
+    from model.cpu import tune_cpu
+    from model.training import EpochBatches, make_optimizer
+
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("data", type=Path)
+    ap.add_argument("--steps", type=int, default=20)
+    ap.add_argument("--trunk", default="scratch")
+    ap.add_argument("--set", nargs="*", default=[], help="config overrides key=value")
+    ap.add_argument("--no-profiler", action="store_true")
+    args = ap.parse_args(argv)
+    over = deep_merge({"data": {"root": str(args.data)}, "model": {"trunk": args.trunk}}, parse_overrides(args.set))
+    cfg = load_config(ROOT / "configs/train/cpu_default.yaml", over)
+    t = cfg["train"]
+    idx = DatasetIndex(cfg["data"]["root"])
+    ds = BevDataset(idx, "train", cfg, train=True)
+    torch.manual_seed(0)
+    model = build_model(cfg, idx.rig)
+    tune_cpu(cfg, torch.device("cpu"), model)
+    opt = make_optimizer(cfg, model)
+    alpha = class_weights(cfg["loss"]["class_weights"])
+    sampler = EpochBatches(len(ds), t["batch_size"], 0, 0, 0, 1)
+    loader = DataLoader(ds, batch_sampler=sampler, num_workers=cfg["data"]["num_workers"], generator=torch.Generator())
+    names = ["data wait", "trunk fwd", "splat index", "splat fwd", "bev encoder+heads fwd", "loss",
+             "bev encoder+heads bwd", "splat bwd", "trunk bwd", "optimiser (clip+step)", "whole step"]
+    times = {k: [] for k in names}
+    steps = min(args.steps, len(sampler))
+    it = iter(loader)
+    prof = None
+    if not args.no_profiler:
+        prof = torch.profiler.profile(activities=[torch.profiler.ProfilerActivity.CPU], schedule=torch.profiler.schedule(wait=1, warmup=1, active=steps - 2))
+        prof.start()
+    for k in range(steps):
+        marks = [time.perf_counter()]
+        batch = next(it)
+        marks.append(time.perf_counter())
+        depth, ctx = model.lift(batch["images"])
+        marks.append(time.perf_counter())
+        index = model._index(batch.get("point_cell"), depth.shape[0])
+        marks.append(time.perf_counter())
+        d2, c2 = depth.detach().requires_grad_(), ctx.detach().requires_grad_()
+        feats = splat(d2, c2, index)
+        marks.append(time.perf_counter())
+        f2 = feats.detach().requires_grad_()
+        x_, y_ = model.grid.shape
+        y = model.bev(model.pool(f2.view(depth.shape[0], x_, y_, -1)))
+        out = {"semantic": model.semantic_head(y), "occlusion": model.occlusion_head(y)[:, 0]}
+        marks.append(time.perf_counter())
+        loss, _ = total_loss(out, batch, alpha)
+        marks.append(time.perf_counter())
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        marks.append(time.perf_counter())
+        feats.backward(f2.grad)
+        marks.append(time.perf_counter())
+        torch.autograd.backward([depth, ctx], [d2.grad, c2.grad])
+        marks.append(time.perf_counter())
+        torch.nn.utils.clip_grad_norm_(model.parameters(), t["grad_clip"])
+        opt.step()
+        marks.append(time.perf_counter())
+        if k >= 2:  # the loader's start and first-step allocations
+            for name, a, b in zip(names, marks, marks[1:]):
+                times[name].append(b - a)
+            times["whole step"].append(marks[-1] - marks[0])
+        if prof:
+            prof.step()
+    if prof:
+        prof.stop()
+    per_step = {k: _ms(v) for k, v in times.items()}
+    print(f"median ms per step of {t['batch_size']} samples over {len(times['whole step'])} steps "
+          f"({torch.get_num_threads()} threads, {cfg['data']['num_workers']} loader workers):")
+    for k, v in per_step.items():
+        print(f"  {k:28s} {v:8.1f}")
+    print(f"  samples/s                    {t['batch_size'] * 1000 / per_step['whole step']:8.2f}")
+    lp = loader_parts(ds, list(range(min(8, len(ds)))))
+    print("loader, median ms per sample in this process:")
+    for k, v in lp.items():
+        print(f"  {k:28s} {v:8.1f}")
+    if prof:
+        print(prof.key_averages(group_by_input_shape=True).table(sort_by="self_cpu_time_total", row_limit=25, max_name_column_width=40, max_shapes_column_width=60))
+
+
+if __name__ == "__main__":
+    main()

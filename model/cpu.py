@@ -1,0 +1,52 @@
+"""CPU settings of a training or inference process (issue 23), measured on the 2-core machine.
+
+- Compute threads: one per core left after the data loader's worker processes (`data.num_workers`)
+  and the other processes of a CPU DDP run. A loader worker busy on a core that an intra-op thread
+  also wants makes every parallel region wait for the descheduled thread: with one loader worker
+  on 2 cores, 2 compute threads ran a training step and a four-camera inference several times
+  slower than 1 (docs/benchmarks.md). The count depends only on the config and the machine's cores
+  (never on its load), so a resumed run computes with the same threads as an uninterrupted one.
+- channels_last weights: oneDNN's convolutions and GroupNorm run faster in NHWC on CPU, and the
+  splat already hands the BEV encoder an NHWC grid. A module with `keep_contiguous = True` (the
+  pretrained EfficientNet trunk, whose BatchNorm/depthwise backward in NHWC was 20x further from a
+  float64 reference than in NCHW: 2.5e-2 against 1e-3 relative) stays NCHW.
+
+`train.threads` (> 0) overrides the count. The GPU path is left as it was.
+"""
+
+from __future__ import annotations
+
+import os
+
+import torch
+
+
+def cores() -> int:
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # not Linux
+        return os.cpu_count() or 1
+
+
+def compute_threads(num_workers: int, processes: int = 1) -> int:
+    """Intra-op threads of one of `processes` processes that each feed `num_workers` loader workers."""
+    return max(1, cores() // max(1, processes) - num_workers)
+
+
+def tune_cpu(cfg: dict, device: torch.device, model: torch.nn.Module | None = None, processes: int = 1) -> None:
+    """Thread count and memory format for the config's run on `device` (nothing on a GPU)."""
+    if device.type != "cpu":
+        return
+    threads = cfg["train"]["threads"] or compute_threads(cfg["data"]["num_workers"], processes)
+    torch.set_num_threads(threads)
+    if model is not None:
+        channels_last(model)
+
+
+def channels_last(model: torch.nn.Module) -> torch.nn.Module:
+    """The model's 4-D weights in NHWC, but for modules marked `keep_contiguous`."""
+    model.to(memory_format=torch.channels_last)
+    for m in model.modules():
+        if getattr(m, "keep_contiguous", False):
+            m.to(memory_format=torch.contiguous_format)
+    return model

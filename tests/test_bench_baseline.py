@@ -1,0 +1,39 @@
+"""bench.model's baseline comparison (issue 23): a commit's tree written aside and measured in
+fresh processes with its own code."""
+
+import subprocess
+
+import pytest
+
+from bench import model as bm
+
+
+def head_commit() -> str:
+    return subprocess.run(["git", "-C", str(bm.ROOT), "rev-parse", "HEAD"], capture_output=True, text=True, check=True).stdout.strip()
+
+
+def test_checkout_writes_the_commits_tree_and_runs_its_code(tmp_path, monkeypatch):
+    root = bm.checkout(head_commit(), tmp_path / "base")
+    assert (root / "bench" / "model.py").is_file() and (root / "model" / "lss.py").is_file()
+    assert not (root / ".git").exists()
+    # a child runs the checkout's code, not this one's: mark the copy and ask it
+    (root / "bench" / "model.py").write_text((root / "bench" / "model.py").read_text() + "\ndef _whoami():\n    return {'root': str(ROOT)}\n")
+    assert bm._in_child("_whoami", root=root) == {"root": str(root)}
+
+
+def test_versus_pairs_the_two_checkouts_and_takes_the_median_ratio(tmp_path, monkeypatch):
+    calls = []
+
+    def fake(fn, *args, root, env=None):
+        calls.append(root)
+        return {"x": 2.0 if root == bm.ROOT else 4.0, "x_peak_rss_mb": 1.0}
+
+    monkeypatch.setattr(bm, "_in_child", fake)
+    out = bm.versus([("_child_train", "data", 1)], tmp_path, rounds=2)
+    assert calls == [bm.ROOT, tmp_path, tmp_path, bm.ROOT]  # ABBA
+    assert out == {"x": 2.0, "x_baseline": 4.0, "x_ratio": 0.5, "x_peak_rss_mb": 1.0}
+
+
+def test_an_unknown_baseline_is_one_line(tmp_path):
+    with pytest.raises(RuntimeError, match="baseline: git archive nosuchcommit"):
+        bm.checkout("nosuchcommit", tmp_path / "b")
