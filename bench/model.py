@@ -189,22 +189,20 @@ def _peak_rss_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
 
 
-def _child_train(data_root: str, steps: int, trunk: str = "scratch") -> dict:
-    """Training samples/s of cpu_default as model.training sets it up (threads, memory format,
-    optimiser, loader), on the data set at data_root; the first step (loader start) not counted."""
+def training_setup(cfg: dict):
+    """cpu_default's training pieces as model.training sets them up (threads, memory format,
+    optimiser, loader), seeded: -> (model, opt, alpha, loader) over the config's training split."""
     from torch.utils.data import DataLoader
 
     from dataset_tools.format.reader import DatasetIndex
     from model import build_model
-    from model.config import load_config
     from model.cpu import tune_cpu
     from model.data import BevDataset
-    from model.losses import class_weights, total_loss
+    from model.losses import class_weights
     from model.training import EpochBatches, make_optimizer
 
-    cfg = load_config(ROOT / "configs/train/cpu_default.yaml", {"data": {"root": data_root}, "model": {"trunk": trunk}})
     t = cfg["train"]
-    idx = DatasetIndex(data_root)
+    idx = DatasetIndex(cfg["data"]["root"])
     ds = BevDataset(idx, "train", cfg, train=True)
     torch.manual_seed(0)
     model = build_model(cfg, idx.rig)
@@ -213,6 +211,18 @@ def _child_train(data_root: str, steps: int, trunk: str = "scratch") -> dict:
     alpha = class_weights(cfg["loss"]["class_weights"])
     loader = DataLoader(ds, batch_sampler=EpochBatches(len(ds), t["batch_size"], 0, 0, 0, 1),
                         num_workers=cfg["data"]["num_workers"], generator=torch.Generator())
+    return model, opt, alpha, loader
+
+
+def _child_train(data_root: str, steps: int, trunk: str = "scratch") -> dict:
+    """Training samples/s of cpu_default as model.training sets it up (threads, memory format,
+    optimiser, loader), on the data set at data_root; the first step (loader start) not counted."""
+    from model.config import load_config
+    from model.losses import total_loss
+
+    cfg = load_config(ROOT / "configs/train/cpu_default.yaml", {"data": {"root": data_root}, "model": {"trunk": trunk}})
+    t = cfg["train"]
+    model, opt, alpha, loader = training_setup(cfg)
     it = iter(loader)
     times = []
     for k in range(steps + 1):

@@ -18,7 +18,6 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from torch.utils.data import DataLoader
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -63,14 +62,11 @@ def loader_parts(ds, indices) -> dict:
 
 def main(argv=None):
     from common.schema import deep_merge
-    from dataset_tools import DatasetIndex
-    from model import build_model
     from model.config import load_config, parse_overrides
-    from model.data import BevDataset
-    from model.losses import class_weights, total_loss
+    from model.losses import total_loss
     from model.splat import splat
-    from model.cpu import tune_cpu
-    from model.training import EpochBatches, make_optimizer
+
+    from .model import training_setup
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("data", type=Path)
@@ -82,15 +78,8 @@ def main(argv=None):
     over = deep_merge({"data": {"root": str(args.data)}, "model": {"trunk": args.trunk}}, parse_overrides(args.set))
     cfg = load_config(ROOT / "configs/train/cpu_default.yaml", over)
     t = cfg["train"]
-    idx = DatasetIndex(cfg["data"]["root"])
-    ds = BevDataset(idx, "train", cfg, train=True)
-    torch.manual_seed(0)
-    model = build_model(cfg, idx.rig)
-    tune_cpu(cfg, torch.device("cpu"), model)
-    opt = make_optimizer(cfg, model)
-    alpha = class_weights(cfg["loss"]["class_weights"])
-    sampler = EpochBatches(len(ds), t["batch_size"], 0, 0, 0, 1)
-    loader = DataLoader(ds, batch_sampler=sampler, num_workers=cfg["data"]["num_workers"], generator=torch.Generator())
+    model, opt, alpha, loader = training_setup(cfg)
+    sampler, ds = loader.batch_sampler, loader.dataset
     names = ["data wait", "trunk fwd", "splat index", "splat fwd", "bev encoder+heads fwd", "loss",
              "bev encoder+heads bwd", "splat bwd", "trunk bwd", "optimiser (clip+step)", "whole step"]
     times = {k: [] for k in names}
