@@ -115,15 +115,11 @@ def picture(path: Path, images: dict, pred: Prediction, grid, class_names, title
 
     from common.files import write_figure_atomic
     from dataset_tools import TRAIN_PALETTE, colorize_train
+    from model.eval_report import camera_row
 
-    names = list(images)
-    fig = plt.figure(figsize=(4 * max(4, len(names)), 8))
-    gs = fig.add_gridspec(2, max(4, len(names)), height_ratios=[1, 1.8])
-    for i, n in enumerate(names):
-        ax = fig.add_subplot(gs[0, i])
-        ax.imshow(images[n])
-        ax.set_title(n, fontsize=9)
-        ax.axis("off")
+    fig = plt.figure(figsize=(4 * max(4, len(images)), 8))
+    gs = fig.add_gridspec(2, max(4, len(images)), height_ratios=[1, 1.8])
+    camera_row(fig, gs, images)
     extent = (grid.y_max, grid.y_min, grid.x_min, grid.x_max)  # columns run from +y (left) to -y
     for j, (img, t) in enumerate([(colorize_train(pred.classes[0].numpy()), "predicted classes"),
                                   (pred.visibility[0].numpy(), "predicted visibility p(o)")]):

@@ -74,6 +74,15 @@ def _signed(v) -> str:
     return "-" if v is None or v != v else f"{v:+.3f}"
 
 
+def camera_row(fig, gs, images: dict) -> None:
+    """The camera images, titled by name, along the first row of the grid spec `gs`."""
+    for i, (n, img) in enumerate(images.items()):
+        ax = fig.add_subplot(gs[0, i])
+        ax.imshow(img)
+        ax.set_title(n, fontsize=9)
+        ax.axis("off")
+
+
 def frame_picture(path: Path, images: dict, truth, vis, pred, pred_vis, class_names, title: str):
     """The four fisheye images, the truth (dimmed where invisible), the prediction, the visibility."""
     import matplotlib
@@ -82,14 +91,9 @@ def frame_picture(path: Path, images: dict, truth, vis, pred, pred_vis, class_na
     import matplotlib.pyplot as plt
     from matplotlib.patches import Patch
 
-    names = list(images)
     fig = plt.figure(figsize=(16, 7.4))
-    gs = fig.add_gridspec(2, max(4, len(names)), height_ratios=[1, 1.6])
-    for i, n in enumerate(names):
-        ax = fig.add_subplot(gs[0, i])
-        ax.imshow(images[n])
-        ax.set_title(n, fontsize=9)
-        ax.axis("off")
+    gs = fig.add_gridspec(2, max(4, len(images)), height_ratios=[1, 1.6])
+    camera_row(fig, gs, images)
     panels = [(colorize_train(truth, vis), "truth (dimmed: p(o) < 0.5)"), (colorize_train(pred), "prediction"),
               (vis, "true visibility p(o)"), (pred_vis, "predicted visibility")]
     for i, (img, t) in enumerate(panels):
