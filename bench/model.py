@@ -243,7 +243,7 @@ def _child_train(data_root: str, steps: int, trunk: str = "scratch") -> dict:
 
 def _child_infer(repeat: int, trunk: str = "scratch") -> dict:
     """Inference ms per four-camera frame of cpu_default, set up as a run of the config is
-    (model.cpu: threads for the config's loader workers, memory format)."""
+    (model.cpu: threads, memory format)."""
     from geometry.rig import load_rig
     from model import build_model
     from model.config import load_config

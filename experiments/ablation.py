@@ -50,9 +50,18 @@ ROWS = {
     "pool_max": ("max pooling", {"model": {"pooling": "max"}}),
     "pool_weighted_sum": ("weighted-sum pooling", {"model": {"pooling": "weighted_sum"}}),
     "pool_sensors_per_cell": ("sensors-per-cell pooling", {"model": {"pooling": "sensors_per_cell"}}),
+    # issue 22: supervision from the renderer's passes, on top of `ours` (docs/model.md)
+    "ours_depth": ("ours + depth supervision from the distance pass", {"loss": {"depth_weight": 1.0}}),
+    "ours_camera_seg": ("ours + camera-view semantic head", {"loss": {"camera_seg_weight": 0.5}}),
+    "ours_depth_camera_seg": ("ours + depth supervision + camera-view head",
+                              {"loss": {"depth_weight": 1.0, "camera_seg_weight": 0.5}}),
+    "ours_recipe": ("ours + both + soft Dice + warm-up and cosine decay (configs/train/demo.yaml's recipe)",
+                    {"loss": {"depth_weight": 1.0, "camera_seg_weight": 0.5, "dice_weight": 1.0},
+                     "train": {"lr_schedule": "cosine", "warmup_steps": 50}}),
 }
 COLUMNS = [("miou", "mIoU"), ("iou/occlusion", "Occlusion"), ("iou/vehicle", "Vehicles"),
            ("iou/lane_marking", "Markings"), ("iou/street", "Street"), ("iou/background", "Background")]
+COLUMNS_III = COLUMNS + [("iou_tol/lane_marking", "Markings within 1 cell")]  # issue 22's table: also the tolerance IoU
 TABLES_MD, TABLES_JSON = "tables.md", "tables.json"  # in --out, beside the rows' run folders <row>/seed<k>/
 EVAL_SPLITS = ("easy", "medium", "hard", "heldout")  # heldout: sampled scenes of unseen seeds, where the data set has them
 
@@ -90,6 +99,10 @@ CLAIMS = [
     ("pooling: intrinsics + embedding > sensors per cell > weighted sum, sum > max (Table II)",
      [("ours", "pool_sensors_per_cell"), ("pool_sensors_per_cell", "pool_weighted_sum"), ("pool_sum", "pool_max")], ("medium",)),
 ]
+# Issue 22's questions, asked the same way on every split with a test set (none is the paper's).
+SUPERVISION = [("depth supervision", "ours_depth"), ("camera-view head", "ours_camera_seg"),
+               ("both", "ours_depth_camera_seg"), ("both + Dice + cosine schedule", "ours_recipe")]
+OUR_CLAIMS = [(f"{label} > ours (issue 22)", [(row, "ours")], ("easy", "medium", "hard", "heldout")) for label, row in SUPERVISION]
 VERDICT_KEY = "miou"
 
 
@@ -213,13 +226,13 @@ def _runs(results: list[dict], split: str):
     return [per_scene_arrays(h["scenes"]) for h in have]
 
 
-def summarise(results: list[dict], split: str, class_names) -> dict:
+def summarise(results: list[dict], split: str, class_names, columns=None) -> dict:
     """Column key -> {"mean", "std" (over seeds; None for one), "seeds", "low", "high" (95 % over
     seeds and scenes; None without per-scene matrices), "scenes"}, or None where no seed has it."""
     runs = _runs(results, split)
     iv = runs_bootstrap(runs, class_names) if runs else {}
     out = {}
-    for key, _ in COLUMNS:
+    for key, _ in columns or COLUMNS:
         vals = [r["splits"][split]["overall"].get(key) for r in results if split in r["splits"]]
         vals = [v for v in vals if v is not None and v == v]
         if not vals:
@@ -231,12 +244,12 @@ def summarise(results: list[dict], split: str, class_names) -> dict:
     return out
 
 
-def claims(results: dict[str, list[dict]], class_names) -> list[dict]:
-    """Every claim of CLAIMS with its parts (pair and split: the mIoU difference better - worse,
+def claims(results: dict[str, list[dict]], class_names, which=None) -> list[dict]:
+    """Every claim of `which` (default CLAIMS) with its parts (pair and split: the mIoU difference better - worse,
     its paired 95 % interval over seeds and scenes, the smallest detectable difference, the verdict)
     and its verdict on the paper's splits. Pairs or splits without per-scene scores are left out."""
     out = []
-    for claim, pairs, paper_splits in CLAIMS:
+    for claim, pairs, paper_splits in CLAIMS if which is None else which:
         parts = []
         for better, worse in pairs:
             for split in EVAL_SPLITS:
@@ -274,6 +287,21 @@ def _budget(meta: dict) -> str:
     return f"{meta['steps']} steps per row" if meta.get("steps") else f"{meta['budget_minutes']:g} min of training per row"
 
 
+def _verdict_lines(cs: list[dict]) -> list[str]:
+    """A claim's verdict table and its parts' table (markdown lines)."""
+    lines = ["| Claim | Verdict |", "|---|---|"]
+    for c in cs:
+        lines.append(f"| {c['claim']} | **{c['verdict']}**" + ("" if c["complete"] else " (rows or splits missing)") + " |")
+    lines += ["", "| Claim | Better - worse | Split | Seeds | Scenes | Difference | 95 % interval | Smallest detectable | Verdict |",
+              "|---|---|---|---|---|---|---|---|---|"]
+    for c in cs:
+        for p in c["parts"]:
+            lines.append(f"| {c['claim'].split(' (')[0]} | {p['better']} - {p['worse']} | {p['split']}{'*' if p['paper_split'] else ''} | "
+                         f"{p['seeds'][0]}, {p['seeds'][1]} | {p['scenes']} | {_signed(p['diff'])} | "
+                         f"[{_signed(p['low'])}, {_signed(p['high'])}] | {p['detectable']:.3f} | {p['verdict']} |")
+    return lines
+
+
 def tables(results: dict[str, list[dict]], meta: dict) -> tuple[str, dict]:
     heads = [t for _, t in COLUMNS]
     names = meta["class_names"]
@@ -284,7 +312,7 @@ def tables(results: dict[str, list[dict]], meta: dict) -> tuple[str, dict]:
              "## Table I: raw fisheye against cylindrical rectification", "",
              "| Method | Dataset | " + " | ".join(f"{h} (ours) | {h} (paper)" for h in heads) + " |",
              "|---|---|" + "---|---|" * len(heads)]
-    js = {"meta": meta, "table_1": [], "table_2": [], "claims": [], "runs": results}
+    js = {"meta": meta, "table_1": [], "table_2": [], "table_3": [], "claims": [], "runs": results}
     for label, row in TABLE_I:
         if row not in results:
             continue
@@ -304,23 +332,29 @@ def tables(results: dict[str, list[dict]], meta: dict) -> tuple[str, dict]:
         s = summarise(results[row], "medium", names)
         lines.append(f"| {section} | {label} | " + " | ".join(f"{_cell(s[k])} | {_paper(p)}" for (k, _), p in zip(COLUMNS, paper)) + " |")
         js["table_2"].append({"section": section, "setting": label, "row": row, "ours": s, "paper": dict(zip([k for k, _ in COLUMNS], paper))})
+    rows3 = [(label, row) for label, row in SUPERVISION if row in results]
+    if rows3 and "ours" in results:
+        lines += ["", "## Supervision from the renderer (issue 22), on every split", "",
+                  "| Row | Dataset | " + " | ".join(t for _, t in COLUMNS_III) + " |", "|---|---|" + "---|" * len(COLUMNS_III)]
+        for label, row in [("ours", "ours"), *rows3]:
+            for split in EVAL_SPLITS:
+                if not any(split in r["splits"] for r in results[row]):
+                    continue
+                s = summarise(results[row], split, names, COLUMNS_III)
+                lines.append(f"| {label} | {split} | " + " | ".join(_cell(s[k]) for k, _ in COLUMNS_III) + " |")
+                js["table_3"].append({"setting": label, "row": row, "split": split, "ours": s})
     js["claims"] = claims(results, names)
     lines += ["", "## Verdicts on the paper's claims", "",
               "Per claim, the mIoU difference (paper's better row minus worse row, mean over seeds), its 95 % interval "
               "from a bootstrap over seeds and scenes with the scenes paired, and the smallest difference this run "
               "could have detected (the interval's half-width). **reproduced**: the interval is above 0; "
               "**contradicted**: below 0; **undecided**: it contains 0. The claim's verdict counts the paper's "
-              "splits (marked *); the others are shown for information.", "",
-              "| Claim | Verdict |", "|---|---|"]
-    for c in js["claims"]:
-        lines.append(f"| {c['claim']} | **{c['verdict']}**" + ("" if c["complete"] else " (rows or splits missing)") + " |")
-    lines += ["", "| Claim | Better - worse | Split | Seeds | Scenes | Difference | 95 % interval | Smallest detectable | Verdict |",
-              "|---|---|---|---|---|---|---|---|---|"]
-    for c in js["claims"]:
-        for p in c["parts"]:
-            lines.append(f"| {c['claim'].split(' (')[0]} | {p['better']} - {p['worse']} | {p['split']}{'*' if p['paper_split'] else ''} | "
-                         f"{p['seeds'][0]}, {p['seeds'][1]} | {p['scenes']} | {_signed(p['diff'])} | "
-                         f"[{_signed(p['low'])}, {_signed(p['high'])}] | {p['detectable']:.3f} | {p['verdict']} |")
+              "splits (marked *); the others are shown for information.", "", *_verdict_lines(js["claims"])]
+    if rows3:
+        js["our_claims"] = claims(results, names, OUR_CLAIMS)
+        lines += ["", "## Verdicts on the supervision rows (issue 22)", "",
+                  "The same test, each row against `ours` on every split with a test set: **reproduced** means "
+                  "the row is better on every split.", "", *_verdict_lines(js["our_claims"])]
     r = meta.get("rectification")
     if r:
         px = ", ".join(f"{n} {100 * v:.1f}%" for n, v in r["lost_fisheye_pixels"].items())

@@ -107,7 +107,7 @@ SCHEMA = Section({
         "log_every": Num(0, 10**9, integer=True, default=10),  # steps; 0: no per-step scalars
         "image_every": Num(0, 10**9, integer=True, default=200),
         "device": Str(choices=("auto", "cpu", "cuda"), default="auto"),
-        "threads": Num(0, 1024, integer=True, default=0),  # torch threads per process; 0: on CPU, the cores less the loader workers (model.cpu.tune_cpu)
+        "threads": Num(0, 1024, integer=True, default=0),  # torch threads per process; 0: on CPU, the cores shared among the processes (model.cpu.tune_cpu)
     }),
 })
 

@@ -1,11 +1,12 @@
 """CPU settings of a training or inference process (issue 23), measured on the 2-core machine.
 
-- Compute threads: one per core left after the data loader's worker processes (`data.num_workers`)
-  and the other processes of a CPU DDP run. A loader worker busy on a core that an intra-op thread
-  also wants makes every parallel region wait for the descheduled thread: with one loader worker
-  on 2 cores, 2 compute threads ran a training step and a four-camera inference several times
-  slower than 1 (docs/benchmarks.md). The count depends only on the config and the machine's cores
-  (never on its load), so a resumed run computes with the same threads as an uninterrupted one.
+- Compute threads: the cores shared among the processes of a CPU DDP run (all of them for one
+  process). An earlier rule left the loader workers their cores (1 compute thread on 2 cores with
+  cpu_default's loader worker): faster on a machine loaded by other jobs, but on an idle 2-core
+  machine 0.82x the training samples/s and 1.6x the inference time of 2 threads
+  (docs/benchmarks.md, "Issue 23"); the loader worker is idle most of a step. The count depends
+  only on the machine's cores and the process count (never on its load), so a resumed run computes
+  with the same threads as an uninterrupted one.
 - channels_last weights: oneDNN's convolutions and GroupNorm run faster in NHWC on CPU, and the
   splat already hands the BEV encoder an NHWC grid. A module with `keep_contiguous = True` (the
   pretrained EfficientNet trunk, whose BatchNorm/depthwise backward in NHWC was 20x further from a
@@ -28,16 +29,16 @@ def cores() -> int:
         return os.cpu_count() or 1
 
 
-def compute_threads(num_workers: int, processes: int = 1) -> int:
-    """Intra-op threads of one of `processes` processes that each feed `num_workers` loader workers."""
-    return max(1, cores() // max(1, processes) - num_workers)
+def compute_threads(processes: int = 1) -> int:
+    """Intra-op threads of one of `processes` processes on this machine."""
+    return max(1, cores() // max(1, processes))
 
 
 def tune_cpu(cfg: dict, device: torch.device, model: torch.nn.Module | None = None, processes: int = 1) -> None:
     """Thread count and memory format for the config's run on `device` (nothing on a GPU)."""
     if device.type != "cpu":
         return
-    threads = cfg["train"]["threads"] or compute_threads(cfg["data"]["num_workers"], processes)
+    threads = cfg["train"]["threads"] or compute_threads(processes)
     torch.set_num_threads(threads)
     if model is not None:
         channels_last(model)
