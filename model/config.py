@@ -95,6 +95,7 @@ SCHEMA = Section({
         "epochs": Num(1, 10**6, integer=True, default=120),
         "max_steps": Num(0, 10**9, integer=True, default=0),  # 0: no limit
         "batch_size": Num(1, 4096, integer=True, default=4),  # global: split across DDP processes
+        "accumulate": Num(1, 1024, integer=True, default=1),  # batches per optimiser step: an effective batch of batch_size x accumulate
         "lr": Num(above=0, hi=10.0, default=1e-3),
         "lr_schedule": Str(choices=("constant", "cosine"), default="constant"),  # cosine: decays to 0 at the last step
         "warmup_steps": Num(0, 10**9, integer=True, default=0),  # linear warm-up from 0; 0: none

@@ -11,6 +11,7 @@ draws from the global RNG, whose state the checkpoint carries.
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
 import signal
@@ -99,9 +100,9 @@ class Run:
 
     @property
     def total_steps(self) -> int:
-        """Optimiser steps of the whole run: train.max_steps, or every whole batch of every epoch."""
+        """Optimiser steps of the whole run: train.max_steps, or every whole effective batch of every epoch."""
         t = self.cfg["train"]
-        return min(t["max_steps"] or 10**12, len(self.train_ds) // t["batch_size"] * t["epochs"])
+        return min(t["max_steps"] or 10**12, len(self.train_ds) // effective_batch(t) * t["epochs"])
 
     @property
     def dir(self) -> RunDir:
@@ -150,8 +151,9 @@ def prepare(cfg: dict, out: Path, quiet: bool = False) -> Run:
     if val_split and val_split not in index.splits:
         raise ConfigError(f"data.val_split: no split '{val_split}' in {index.root} (have: {', '.join(index.splits)}; '' for none)")
     val_ds = BevDataset(index, val_split, cfg, train=False) if val_split and index.splits[val_split] else None
-    if len(train_ds) < t["batch_size"]:
-        raise DataError(f"{index.root}: split '{cfg['data']['train_split']}' has {len(train_ds)} frames, fewer than train.batch_size {t['batch_size']}")
+    if len(train_ds) < effective_batch(t):
+        raise DataError(f"{index.root}: split '{cfg['data']['train_split']}' has {len(train_ds)} frames, fewer than "
+                        f"train.batch_size {t['batch_size']}" + (f" x train.accumulate {t['accumulate']}" if t["accumulate"] > 1 else ""))
     torch.manual_seed(t["seed"])
     model = build_model(cfg, index.rig, len(index.class_names)).to(device)
     tune_cpu(cfg, device, model, int(os.environ.get("LOCAL_WORLD_SIZE", world)))  # processes on this machine
@@ -226,6 +228,21 @@ def log_step(run: Run, loss, parts: dict, out: dict, batch: dict, samples_per_s:
         run.writer.add_image("bev/prediction_truth", torch.cat(pic, 1).permute(2, 0, 1).float() / 255.0, run.step)
 
 
+def effective_batch(t: dict) -> int:
+    """Samples per optimiser step: train.batch_size x train.accumulate."""
+    return t["batch_size"] * t["accumulate"]
+
+
+def micro_batches(batch: dict, k: int) -> list[dict]:
+    """A batch cut into `k` equal micro-batches along the sample axis (its non-tensor entries shared)."""
+    if k == 1:
+        return [batch]
+    n = batch["images"].shape[0]
+    size = n // k
+    return [{key: v[i * size:(i + 1) * size] if isinstance(v, torch.Tensor) and v.dim() and v.shape[0] == n else v
+             for key, v in batch.items()} for i in range(k)]
+
+
 def learning_rate(t: dict, step: int, total: int) -> float:
     """train.lr at optimiser step `step` (0-based) of `total`: a linear warm-up over
     train.warmup_steps, then constant or a cosine decay to 0 at the last step."""
@@ -244,7 +261,8 @@ def train_one_epoch(run: Run, bar, alpha: torch.Tensor, max_steps: int | None) -
     cfg, t = run.cfg, run.cfg["train"]
     loss_cfg = cfg["loss"]
     run.train_ds.set_epoch(run.epoch)
-    sampler = EpochBatches(len(run.train_ds), t["batch_size"], t["seed"], run.epoch, run.rank, run.world, run.step_in_epoch)
+    k = t["accumulate"]  # each optimiser step: one loader batch of batch_size x k samples, k forward/backward passes
+    sampler = EpochBatches(len(run.train_ds), effective_batch(t), t["seed"], run.epoch, run.rank, run.world, run.step_in_epoch)
     # own generator: creating an iterator must not draw from the global RNG (dropout), or a
     # resumed run would diverge from an uninterrupted one
     loader = DataLoader(run.train_ds, batch_sampler=sampler, num_workers=cfg["data"]["num_workers"],
@@ -260,13 +278,17 @@ def train_one_epoch(run: Run, bar, alpha: torch.Tensor, max_steps: int | None) -
             if run.stop.requested:  # data workers died of the same Ctrl-C: stop at the last whole step
                 return False
             raise
-        batch = to_device(batch, run.device)
-        out = forward(run.ddp, batch)
-        loss, parts = total_loss(out, batch, alpha, loss_cfg["occlusion_weight"], loss_cfg["visibility_weighting"],
-                                 loss_cfg["occlusion_target"], loss_cfg["depth_weight"], loss_cfg["camera_seg_weight"],
-                                 loss_cfg["dice_weight"])
         run.opt.zero_grad(set_to_none=True)
-        loss.backward()
+        step_loss = 0.0
+        for i, batch in enumerate(micro_batches(to_device(batch, run.device), k)):
+            # DDP averages gradients once, on the last micro-batch
+            with run.ddp.no_sync() if run.world > 1 and i < k - 1 else contextlib.nullcontext():
+                out = forward(run.ddp, batch)
+                loss, parts = total_loss(out, batch, alpha, loss_cfg["occlusion_weight"], loss_cfg["visibility_weighting"],
+                                         loss_cfg["occlusion_target"], loss_cfg["depth_weight"], loss_cfg["camera_seg_weight"],
+                                         loss_cfg["dice_weight"])
+                (loss / k if k > 1 else loss).backward()  # per-sample means: k micro-batch means average to the batch's
+            step_loss += loss.item() / k
         if t["grad_clip"] > 0:
             torch.nn.utils.clip_grad_norm_(run.model.parameters(), t["grad_clip"])
         for g in run.opt.param_groups:
@@ -274,8 +296,8 @@ def train_one_epoch(run: Run, bar, alpha: torch.Tensor, max_steps: int | None) -
         run.opt.step()
         run.step += 1
         run.step_in_epoch += 1
-        samples += t["batch_size"]
-        run.history.append(loss.item())
+        samples += effective_batch(t)
+        run.history.append(step_loss)
         if not math.isfinite(run.history[-1]):
             raise ConfigError(f"train: loss is {run.history[-1]} at step {run.step}; lower train.lr or check the data")
         if run.main:

@@ -98,6 +98,26 @@ def test_two_ddp_processes_give_the_same_update_as_one(real_tiny, tmp_path):
     assert checked > 0.9 * total
 
 
+def test_accumulated_micro_batches_give_the_update_of_one_batch(real_tiny, tmp_path):
+    """train.accumulate: 2 micro-batches of 2 samples make the gradient of one batch of 4 (the same
+    samples: the loader draws effective batches), and a step counts optimiser steps. No clipping:
+    it would hide a gradient of the wrong scale."""
+    grid = {"grid": label_grid(real_tiny)}
+    whole = write_config(tmp_path / "a.yaml", real_tiny, train={"max_steps": 1, "batch_size": 4, "grad_clip": 0.0}, data=grid)
+    split = write_config(tmp_path / "b.yaml", real_tiny, train={"max_steps": 1, "batch_size": 2, "accumulate": 2, "grad_clip": 0.0}, data=grid)
+    run_train(whole, tmp_path / "whole")
+    run_train(split, tmp_path / "split")
+    ck1, _ = params(tmp_path / "whole" / "latest.pt")
+    ck2, _ = params(tmp_path / "split" / "latest.pt")
+    assert ck1["step"] == ck2["step"] == 1
+    s1, s2 = ck1["optimizer"]["state"], ck2["optimizer"]["state"]
+    assert len(s1) == len(s2) > 0
+    for i in s1:
+        g1, g2 = s1[i]["exp_avg"] / 0.1, s2[i]["exp_avg"] / 0.1  # Adam's first moment after one step: 0.1 g
+        assert torch.allclose(g1, g2, atol=1e-5 * float(g1.abs().max()) + 1e-12, rtol=0), i
+    assert any(float(s1[i]["exp_avg"].abs().max()) > 0 for i in s1)
+
+
 def test_resumed_run_continues_exactly_after_a_kill(real_tiny, tmp_path):
     # 14 frames, batch 4: 3 steps per epoch, so 7 steps cross two epoch boundaries
     cfg = write_config(tmp_path / "c.yaml", real_tiny, train={"max_steps": 7, "checkpoint_every": 2, "batch_size": 4},
