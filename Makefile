@@ -60,17 +60,18 @@ train: setup
 eval: setup
 	$(PYTHON) eval.py --checkpoint $(RUN) --split $(SPLIT)
 
-# make ablation [STEPS=420] [SEEDS=1] [SEEDS2=$(SEEDS)] [SCALE=cpu] [DATA=data/medium] [OUT=runs/ablation]: the paper's
-# Tables I and II with intervals and verdicts; every row the same optimiser steps (BUDGET=minutes: the same wall clock
-# instead); SEEDS for Table I's rows, SEEDS2 for the rows only in Table II
+# make ablation [STEPS=420] [SEEDS=1] [SEEDS2=$(SEEDS)] [SCALE=cpu] [DATA=data/medium] [OUT=runs/ablation] [JOBS=1]: the
+# paper's Tables I and II with intervals and verdicts; every row the same optimiser steps (BUDGET=minutes: the same wall
+# clock instead); SEEDS for Table I's rows, SEEDS2 for the other rows; JOBS rows train at once (cores/JOBS threads each)
 STEPS ?= 420
 BUDGET ?=
 SEEDS ?= 1
 SEEDS2 ?= $(SEEDS)
 SCALE ?= cpu
 OUT ?= runs/ablation
+JOBS ?= 1
 ablation: setup
-	$(PYTHON) -m experiments.ablation $(if $(BUDGET),--budget-minutes $(BUDGET),--steps $(STEPS)) --seeds $(SEEDS) --seeds-table2 $(SEEDS2) --scale $(SCALE) --out $(OUT) $(if $(filter command line,$(origin DATA)),--data $(DATA))
+	$(PYTHON) -m experiments.ablation $(if $(BUDGET),--budget-minutes $(BUDGET),--steps $(STEPS)) --seeds $(SEEDS) --seeds-table2 $(SEEDS2) --scale $(SCALE) --out $(OUT) --jobs $(JOBS) $(if $(filter command line,$(origin DATA)),--data $(DATA))
 
 demo: setup
 	$(PYTHON) demo.py

@@ -162,6 +162,45 @@ def run_row(base_path, row, seed, out: Path, data, budget_s, steps, extra, quiet
     return result
 
 
+def run_jobs(jobs: list[tuple[str, int]], args: tuple, extra: dict, quiet: bool, eval_splits, parallel: int = 1):
+    """Yield (row, result) of every (row, seed) job, in the jobs' order. With `parallel` > 1, that
+    many jobs train at once in worker processes, each with cores / parallel compute threads (unless
+    --set train.threads says otherwise): on 2 cores two 1-thread runs did more steps per hour than
+    one 2-thread run (docs/results.md). A job's result does not depend on which worker ran it."""
+    from tqdm import tqdm
+
+    base_path, out, data, budget_s, steps = args
+    bar = tqdm(total=len(jobs), desc="ablation rows", dynamic_ncols=True, disable=quiet)
+    if parallel == 1:
+        for row, seed in jobs:
+            yield row, run_row(base_path, row, seed, out, data, budget_s, steps, extra, quiet, eval_splits)
+            bar.update(1)
+        bar.close()
+        return
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+
+    from model.cpu import compute_threads
+
+    threads = {"train": {"threads": compute_threads(parallel)}}
+    extra = deep_merge(threads, extra or {})  # the user's --set train.threads wins
+    done = {}
+    with ProcessPoolExecutor(parallel, mp_context=multiprocessing.get_context("spawn")) as pool:
+        futures = {pool.submit(run_row, base_path, row, seed, out, data, budget_s, steps, extra, True, eval_splits): (row, seed)
+                   for row, seed in jobs}
+        try:
+            for f in as_completed(futures):
+                done[futures[f]] = f.result()
+                bar.update(1)
+        except BaseException:  # a failed job, or Ctrl-C: start no other job; those in flight finish or save and stop
+            for f in futures:
+                f.cancel()
+            raise
+    bar.close()
+    for row, seed in jobs:
+        yield row, done[row, seed]
+
+
 def rectification_report(cfg: dict, frames: int = 12) -> dict:
     """What the rectified baseline loses and costs on this data set: the share of each fisheye's
     valid pixels the cylinder drops, the share of seen BEV cells (p(o) >= 0.5) no rectified image
@@ -373,8 +412,6 @@ def tables(results: dict[str, list[dict]], meta: dict) -> tuple[str, dict]:
 
 
 def main(argv=None) -> int:
-    from tqdm import tqdm
-
     p = ArgumentParser(prog="experiments.ablation", description="Train and score every row of the paper's Tables I and II.")
     g = p.add_mutually_exclusive_group(required=True)
     g.add_argument("--steps", type=int, help="optimiser steps per row and seed: every row learns from the same number of batches (make ablation's default)")
@@ -386,6 +423,7 @@ def main(argv=None) -> int:
     p.add_argument("--out", default="runs/ablation", help="output folder (default runs/ablation)")
     p.add_argument("--rows", help=f"comma-separated subset of rows (default all: {', '.join(ROWS)})")
     p.add_argument("--set", action="append", default=[], metavar="SECTION.FIELD=VALUE", help="override a config field of every row")
+    p.add_argument("--jobs", type=int, default=1, help="rows and seeds trained at once, each with cores/jobs compute threads (default 1)")
     p.add_argument("--report", action="store_true", help="train nothing: write the tables from the rows and seeds already finished")
     p.add_argument("--quiet", action="store_true")
     a = p.parse_args(argv)
@@ -395,6 +433,8 @@ def main(argv=None) -> int:
         raise AblationError(f"--steps: must be >= 1, got {a.steps}")
     if a.seeds < 1:
         raise AblationError(f"--seeds: must be >= 1, got {a.seeds}")
+    if a.jobs < 1:
+        raise AblationError(f"--jobs: must be >= 1, got {a.jobs}")
     seeds2 = a.seeds if a.seeds_table2 is None else a.seeds_table2
     if seeds2 < 1:
         raise AblationError(f"--seeds-table2: must be >= 1, got {seeds2}")
@@ -423,13 +463,15 @@ def main(argv=None) -> int:
     seeds_of = {r: a.seeds if r in TABLE_I_ROWS else seeds2 for r in rows}
     jobs = [(r, s) for s in range(max(seeds_of.values())) for r in rows if s < seeds_of[r]]  # seed 0 of every row first
     budget_s = None if a.budget_minutes is None else 60 * a.budget_minutes
-    for row, seed in tqdm(jobs, desc="ablation rows", dynamic_ncols=True, disable=a.quiet or a.report):
-        if a.report:
+    if a.report:
+        for row, seed in jobs:
             done = RunDir(out / row / f"seed{seed}").result
             if done.is_file():
                 results.setdefault(row, []).append(read_json(done, AblationError))
-            continue
-        results.setdefault(row, []).append(run_row(base_path, row, seed, out, a.data, budget_s, a.steps, extra, a.quiet, eval_splits))
+    else:
+        args = (base_path, out, a.data, budget_s, a.steps)
+        for row, result in run_jobs(jobs, args, extra, a.quiet, eval_splits, a.jobs):
+            results.setdefault(row, []).append(result)
     if not results:
         raise AblationError(f"{out}: no finished rows to report")
     meta = {"scale": a.scale, "config": SCALES[a.scale], "data": data_root, "class_names": class_names,

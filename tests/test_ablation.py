@@ -115,6 +115,21 @@ def test_table_two_rows_can_have_fewer_seeds(tiny_with_test_splits, tmp_path):
     assert {e["ours"]["miou"]["seeds"] for e in t1} == {2}
 
 
+def test_jobs_in_parallel_give_the_results_of_one_at_a_time(tiny_with_test_splits, tmp_path):
+    """--jobs 2: two rows train at once in worker processes; their scores equal the serial run's."""
+    common = ["--steps", "1", "--seeds", "1", "--rows", "ours,pool_max", "--data", str(tiny_with_test_splits)]
+    assert ablation.main(runner_args(*common, "--out", str(tmp_path / "serial"))) == 0
+    assert ablation.main(runner_args(*common, "--out", str(tmp_path / "parallel"), "--jobs", "2")) == 0
+    for row in ("ours", "pool_max"):
+        a, b = (json.loads((tmp_path / o / row / "seed0" / "result.json").read_text()) for o in ("serial", "parallel"))
+        assert a["steps"] == b["steps"] == 1
+        for split in ("easy", "medium", "hard"):
+            assert a["splits"][split]["overall"] == b["splits"][split]["overall"]
+            assert a["splits"][split]["scenes"] == b["splits"][split]["scenes"]
+    t = json.loads((tmp_path / "parallel" / "tables.json").read_text())
+    assert [r["seed"] for r in t["runs"]["ours"]] == [0]
+
+
 def test_bad_arguments_are_one_line_errors(tmp_path):
     import subprocess
     import sys
@@ -125,6 +140,8 @@ def test_bad_arguments_are_one_line_errors(tmp_path):
         ablation.main(["--steps", "1", "--rows", "nope", "--out", str(tmp_path / "o")])
     with pytest.raises(InputError, match="--budget-minutes"):
         ablation.main(["--budget-minutes", "0", "--out", str(tmp_path / "o")])
+    with pytest.raises(InputError, match="--jobs: must be >= 1, got 0"):
+        ablation.main(["--steps", "1", "--jobs", "0", "--out", str(tmp_path / "o")])
     for args, message in [(["--steps", "1", "--budget-minutes", "1"], "argument --budget-minutes: not allowed with argument --steps"),
                           (["--steps", "many"], "argument --steps: invalid int value: 'many'"),
                           ([], "one of the arguments --steps --budget-minutes is required")]:
