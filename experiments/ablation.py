@@ -22,6 +22,7 @@ paper's claims (CLAIMS) from the paired difference's interval (`verdict`).
 
 from __future__ import annotations
 
+import math
 import time
 from pathlib import Path
 
@@ -256,6 +257,17 @@ def detectable(low: float, high: float) -> float:
     return (high - low) / 2
 
 
+def runs_to_decide(diff: float, low: float, high: float, runs: int) -> float | None:
+    """Runs per row (seeds, with the test scenes kept) that would decide an undecided difference of
+    this size, if the interval shrinks as 1 / sqrt(runs): runs x (half-width / |diff|)^2, rounded
+    up. None where the interval already excludes 0; inf where the difference is 0."""
+    if low > 0 or high < 0:
+        return None
+    if diff == 0:
+        return math.inf
+    return float(math.ceil(runs * (detectable(low, high) / abs(diff)) ** 2))
+
+
 def _runs(results: list[dict], split: str):
     """The (cms, occs) per seed of one row on `split`, or None where a seed lacks per-scene matrices
     or the seeds were scored on different scenes."""
@@ -298,7 +310,8 @@ def claims(results: dict[str, list[dict]], class_names, which=None) -> list[dict
                 d = paired_runs_bootstrap(ra, rb, class_names)[VERDICT_KEY]
                 parts.append({"better": better, "worse": worse, "split": split, "paper_split": split in paper_splits,
                               "seeds": [len(ra), len(rb)], "scenes": len(ra[0][0]), **d,
-                              "detectable": detectable(d["low"], d["high"]), "verdict": verdict(d["low"], d["high"])})
+                              "detectable": detectable(d["low"], d["high"]), "verdict": verdict(d["low"], d["high"]),
+                              "runs_to_decide": runs_to_decide(d["diff"], d["low"], d["high"], min(len(ra), len(rb)))})
         counted = [p["verdict"] for p in parts if p["paper_split"]]
         complete = len(counted) == len(pairs) * len(paper_splits)
         v = combine(counted) if complete or "contradicted" in counted else "undecided"
@@ -331,14 +344,18 @@ def _verdict_lines(cs: list[dict]) -> list[str]:
     lines = ["| Claim | Verdict |", "|---|---|"]
     for c in cs:
         lines.append(f"| {c['claim']} | **{c['verdict']}**" + ("" if c["complete"] else " (rows or splits missing)") + " |")
-    lines += ["", "| Claim | Better - worse | Split | Seeds | Scenes | Difference | 95 % interval | Smallest detectable | Verdict |",
-              "|---|---|---|---|---|---|---|---|---|"]
+    lines += ["", "| Claim | Better - worse | Split | Seeds | Scenes | Difference | 95 % interval | Smallest detectable | Verdict | Seeds to decide |",
+              "|---|---|---|---|---|---|---|---|---|---|"]
     for c in cs:
         for p in c["parts"]:
             lines.append(f"| {c['claim'].split(' (')[0]} | {p['better']} - {p['worse']} | {p['split']}{'*' if p['paper_split'] else ''} | "
                          f"{p['seeds'][0]}, {p['seeds'][1]} | {p['scenes']} | {_signed(p['diff'])} | "
-                         f"[{_signed(p['low'])}, {_signed(p['high'])}] | {p['detectable']:.3f} | {p['verdict']} |")
+                         f"[{_signed(p['low'])}, {_signed(p['high'])}] | {p['detectable']:.3f} | {p['verdict']} | {_decide_cell(p.get('runs_to_decide'))} |")
     return lines
+
+
+def _decide_cell(n) -> str:
+    return "-" if n is None else ("never (no difference)" if n == math.inf else f"{n:.0f}")
 
 
 def tables(results: dict[str, list[dict]], meta: dict) -> tuple[str, dict]:
@@ -388,7 +405,9 @@ def tables(results: dict[str, list[dict]], meta: dict) -> tuple[str, dict]:
               "from a bootstrap over seeds and scenes with the scenes paired, and the smallest difference this run "
               "could have detected (the interval's half-width). **reproduced**: the interval is above 0; "
               "**contradicted**: below 0; **undecided**: it contains 0. The claim's verdict counts the paper's "
-              "splits (marked *); the others are shown for information.", "", *_verdict_lines(js["claims"])]
+              "splits (marked *); the others are shown for information. Seeds to decide: for an undecided part, "
+              "the seeds per row that would decide a difference of the size measured, if the interval shrinks "
+              "as 1 / sqrt(seeds) (an extrapolation from this run's spread).", "", *_verdict_lines(js["claims"])]
     if rows3:
         js["our_claims"] = claims(results, names, OUR_CLAIMS)
         lines += ["", "## Verdicts on the supervision rows (issue 22)", "",

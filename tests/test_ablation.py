@@ -189,6 +189,10 @@ def test_verdict_of_an_interval():
     assert ablation.verdict(0.0, 0.0) == "undecided"
     assert ablation.verdict(float("nan"), float("nan")) == "undecided"
     assert ablation.detectable(-0.01, 0.05) == pytest.approx(0.03)
+    # an undecided +0.01 with half-width 0.03 from 2 seeds: 2 x 3^2 = 18 seeds; decided parts need none
+    assert ablation.runs_to_decide(0.01, -0.02, 0.04, 2) == 18
+    assert ablation.runs_to_decide(0.05, 0.01, 0.09, 2) is None and ablation.runs_to_decide(-0.05, -0.09, -0.01, 2) is None
+    assert ablation.runs_to_decide(0.0, -0.01, 0.01, 3) == float("inf")
     assert ablation.combine(["reproduced", "reproduced"]) == "reproduced"
     assert ablation.combine(["reproduced", "undecided"]) == "undecided"
     assert ablation.combine(["reproduced", "contradicted", "undecided"]) == "contradicted"
@@ -243,6 +247,7 @@ def test_claims_on_constructed_scores():
     assert parts[("pool_sensors_per_cell", "pool_weighted_sum", "medium")]["verdict"] == "reproduced"
     sum_max = parts[("pool_sum", "pool_max", "medium")]
     assert sum_max["verdict"] == "undecided" and sum_max["low"] < 0 < sum_max["high"] and sum_max["detectable"] > 0
+    assert sum_max["runs_to_decide"] >= 3 and parts[("ours", "pool_sensors_per_cell", "medium")]["runs_to_decide"] is None
     assert pooling["verdict"] == "undecided"  # one of its three pairs is undecided
 
     # a row without per-scene scores (an old result, its checkpoint gone) leaves the claim undecided, not wrong
