@@ -166,8 +166,9 @@ def run_row(base_path, row, seed, out: Path, data, budget_s, steps, extra, quiet
 def run_jobs(jobs: list[tuple[str, int]], args: tuple, extra: dict, quiet: bool, eval_splits, parallel: int = 1):
     """Yield (row, result) of every (row, seed) job, in the jobs' order. With `parallel` > 1, that
     many jobs train at once in worker processes, each with cores / parallel compute threads (unless
-    --set train.threads says otherwise): on 2 cores two 1-thread runs did more steps per hour than
-    one 2-thread run (docs/results.md). A job's result does not depend on which worker ran it."""
+    --set train.threads says otherwise). On 2 cores two 1-thread runs made 1.07x the steps per hour
+    of one 2-thread run (docs/results.md): little; more cores gain more. A job's result does not
+    depend on which worker ran it."""
     from tqdm import tqdm
 
     base_path, out, data, budget_s, steps = args
