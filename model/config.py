@@ -79,6 +79,9 @@ SCHEMA = Section({
         }),
         "norm": Str(choices=("group", "batch"), default="group"),
         "dropout": Num(0.0, 0.95, default=0.0),
+        # bf16: the trunk and the BEV encoder run under bfloat16 autocast (lift, splat, pooling and
+        # losses stay float32); training and inference alike (issue 23, docs/model.md)
+        "precision": Str(choices=("fp32", "bf16"), default="fp32"),
     }),
     "loss": Section({
         "class_weights": OneOf(Str(choices=("uniform", "paper")), List(Num(0.0, 1e6), length=4),

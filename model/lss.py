@@ -3,6 +3,7 @@ camera pooling -> BEV encoder -> semantic and occlusion heads."""
 
 from __future__ import annotations
 
+import torch
 import torch.nn.functional as F
 from torch import nn
 
@@ -48,6 +49,7 @@ class LSSFisheye(nn.Module):
         self.semantic_head = nn.Conv2d(self.bev.out_channels, num_classes - 1, 1)  # classes 1..K-1; 0 is invalid
         self.occlusion_head = nn.Conv2d(self.bev.out_channels, 1, 1)  # logit of visibility p(o)
         self._index_cache = None
+        self.bf16 = mcfg["precision"] == "bf16"
         # built last, so the other layers draw the same initial weights with or without it
         self.camera_head = nn.Conv2d(c, num_classes - 1, 1) if camera_head else None
 
@@ -64,6 +66,10 @@ class LSSFisheye(nn.Module):
             self._index_cache = (key, splat_index(pc.contiguous(), cells, summed))
         return self._index_cache[1]
 
+    def _autocast(self, x):
+        """bfloat16 autocast on x's device where model.precision is bf16, else nothing."""
+        return torch.autocast(x.device.type, dtype=torch.bfloat16, enabled=self.bf16)
+
     def lift(self, images):
         """images (B, N, 3, H, W) in [0, 1] -> depth probabilities (B, N, D, h, w), context (B, N, C, h, w)."""
         depth_logits, ctx = self.lift_logits(images)
@@ -75,7 +81,9 @@ class LSSFisheye(nn.Module):
         x = self.encoder.normalise(images.flatten(0, 1))
         ts = self.encoder.total_stride
         x = F.pad(x, (0, -w % ts, 0, -h % ts))  # right/bottom padding keeps the principal point
-        depth_logits, ctx = self.encoder(x)
+        with self._autocast(x):
+            depth_logits, ctx = self.encoder(x)
+        depth_logits, ctx = depth_logits.float(), ctx.float()  # the lift and the splat sum in float32
         hs, ws = -(-h // self.stride), -(-w // self.stride)
         depth_logits = depth_logits[..., :hs, :ws]
         ctx = ctx[..., :hs, :ws]
@@ -103,8 +111,9 @@ class LSSFisheye(nn.Module):
             if intrinsics is None:
                 intrinsics = self.nominal_intrinsics[None].expand(b, -1, -1)
             pooled = self.pool(feats.view(b, n, x_, y_, -1), cover, intrinsics)
-        y = self.bev(pooled)
-        out = {"semantic": self.semantic_head(y), "occlusion": self.occlusion_head(y)[:, 0]}
+        with self._autocast(pooled):
+            y = self.bev(pooled)
+            out = {"semantic": self.semantic_head(y).float(), "occlusion": self.occlusion_head(y)[:, 0].float()}
         if self.training:
             out["depth_logits"] = depth_logits
             if self.camera_head is not None:
