@@ -5,7 +5,9 @@
   (cpu_default sizes, the default rig's real lift geometry); equal results checked.
 - training samples/s and inference ms per four-camera frame for cpu_default, and peak memory
   (each measured in a fresh process, on a constructed data set of 480x302 images), for the
-  from-scratch trunk and the pretrained EfficientNet-Lite0 (`_efficientnet_lite0` figures).
+  from-scratch trunk and the pretrained EfficientNet-Lite0 (`_efficientnet_lite0` figures); the same
+  under bf16 autocast (`model.precision: bf16`, `_bf16` figures, and `_bf16_vs_fp32` ratios against
+  this checkout's fp32, measured alternating).
 - cylindrical rectification (the paper's baseline): ms per four-camera frame, tables per rig.
 
     PYTHONPATH=. python -m bench.model
@@ -214,13 +216,18 @@ def training_setup(cfg: dict):
     return model, opt, alpha, loader
 
 
-def _child_train(data_root: str, steps: int, trunk: str = "scratch") -> dict:
+def _sfx(trunk: str, precision: str) -> str:
+    return ("" if trunk == "scratch" else f"_{trunk}") + ("" if precision == "fp32" else f"_{precision}")
+
+
+def _child_train(data_root: str, steps: int, trunk: str = "scratch", precision: str = "fp32") -> dict:
     """Training samples/s of cpu_default as model.training sets it up (threads, memory format,
     optimiser, loader), on the data set at data_root; the first step (loader start) not counted."""
     from model.config import load_config
     from model.losses import total_loss
 
-    cfg = load_config(ROOT / "configs/train/cpu_default.yaml", {"data": {"root": data_root}, "model": {"trunk": trunk}})
+    over = {"data": {"root": data_root}, "model": {"trunk": trunk, **({} if precision == "fp32" else {"precision": precision})}}
+    cfg = load_config(ROOT / "configs/train/cpu_default.yaml", over)
     t = cfg["train"]
     model, opt, alpha, loader = training_setup(cfg)
     it = iter(loader)
@@ -236,12 +243,12 @@ def _child_train(data_root: str, steps: int, trunk: str = "scratch") -> dict:
         opt.step()
         if k:  # the first step includes the loader's start
             times.append(time.perf_counter() - t0)
-    sfx = "" if trunk == "scratch" else f"_{trunk}"
+    sfx = _sfx(trunk, precision)
     return {f"train_samples_per_s{sfx}": t["batch_size"] * len(times) / sum(times),
             f"train_peak_rss_mb{sfx}": _peak_rss_mb()}
 
 
-def _child_infer(repeat: int, trunk: str = "scratch") -> dict:
+def _child_infer(repeat: int, trunk: str = "scratch", precision: str = "fp32") -> dict:
     """Inference ms per four-camera frame of cpu_default, set up as a run of the config is
     (model.cpu: threads, memory format)."""
     from geometry.rig import load_rig
@@ -249,7 +256,7 @@ def _child_infer(repeat: int, trunk: str = "scratch") -> dict:
     from model.config import load_config
     from model.cpu import tune_cpu
 
-    cfg = load_config(ROOT / "configs/train/cpu_default.yaml", {"model": {"trunk": trunk}})
+    cfg = load_config(ROOT / "configs/train/cpu_default.yaml", {"model": {"trunk": trunk, **({} if precision == "fp32" else {"precision": precision})}})
     torch.manual_seed(0)
     model = build_model(cfg, load_rig(ROOT / "configs/rigs/default.yaml")).eval()
     tune_cpu(cfg, torch.device("cpu"), model)
@@ -257,7 +264,7 @@ def _child_infer(repeat: int, trunk: str = "scratch") -> dict:
     x = torch.rand(1, 4, 3, h, w)
     with torch.inference_mode():
         ms = 1000 * _time(lambda: model(x), repeat)
-    sfx = "" if trunk == "scratch" else f"_{trunk}"
+    sfx = _sfx(trunk, precision)
     return {f"infer_ms_per_frame{sfx}": ms, f"infer_peak_rss_mb{sfx}": _peak_rss_mb()}
 
 
@@ -323,6 +330,25 @@ def versus(children: list[tuple], baseline_root: Path, rounds: int, env: dict | 
     return out
 
 
+def precision_versus(children: list[tuple], rounds: int, precision: str = "bf16") -> dict:
+    """Each child (fn, *args) of this checkout in fp32 and in `precision`, alternating; -> the
+    `precision` figures and the median per-pair ratio against fp32 (`*_bf16_vs_fp32`)."""
+    out = {}
+    for fn, *args in children:
+        full, half = [], []
+        for r in range(rounds):
+            order = [(full, "fp32"), (half, precision)]
+            for dest, prec in (order if r % 2 == 0 else order[::-1]):
+                dest.append(_in_child(fn, *args, prec))
+        for key in full[0]:
+            if "rss" in key:
+                continue
+            hkey = f"{key}_{precision}"  # _sfx: the trunk's suffix, then the precision's
+            out[hkey] = statistics.median(h[hkey] for h in half)
+            out[f"{hkey}_vs_fp32"] = statistics.median(h[hkey] / f[key] for f, h in zip(full, half))
+    return out
+
+
 def run(train_steps: int = 12, infer_repeat: int = 20, baseline: str | None = None, rounds: int = 2) -> dict:
     """baseline: a commit of this repository whose training and inference figures are measured in
     the same run, alternating with this checkout's (figures *_baseline and *_ratio)."""
@@ -341,6 +367,7 @@ def run(train_steps: int = 12, infer_repeat: int = 20, baseline: str | None = No
         else:
             for fn, *args in children:
                 res.update(_in_child(fn, *args))
+        res.update(precision_versus(children, rounds))
     res.update(bench_rectify())
     res["load_average_1min_at_end"] = os.getloadavg()[0]
     res["goals"] = dict(GOALS, **(RATIO_GOALS if baseline else {}))

@@ -37,3 +37,21 @@ def test_versus_pairs_the_two_checkouts_and_takes_the_median_ratio(tmp_path, mon
 def test_an_unknown_baseline_is_one_line(tmp_path):
     with pytest.raises(RuntimeError, match="baseline: git archive nosuchcommit"):
         bm.checkout("nosuchcommit", tmp_path / "b")
+
+
+def test_precision_versus_pairs_fp32_and_bf16_of_this_checkout(monkeypatch):
+    calls = []
+
+    def fake(fn, *args, root=bm.ROOT, env=None):
+        calls.append(args[-1])
+        return {"x" + ("" if args[-1] == "fp32" else "_bf16"): 4.0 if args[-1] == "fp32" else 3.0, "x_peak_rss_mb": 1.0}
+
+    monkeypatch.setattr(bm, "_in_child", fake)
+    out = bm.precision_versus([("_child_infer", 5, "scratch")], rounds=2)
+    assert calls == ["fp32", "bf16", "bf16", "fp32"]
+    assert out == {"x_bf16": 3.0, "x_bf16_vs_fp32": 0.75}
+
+
+def test_a_bf16_inference_child_runs_for_real():
+    out = bm._in_child("_child_infer", 2, "scratch", "bf16")
+    assert out["infer_ms_per_frame_bf16"] > 0 and out["infer_peak_rss_mb_bf16"] > 0
