@@ -2,6 +2,7 @@
 
     python eval.py --checkpoint runs/cpu_default/latest.pt --split {train,easy,medium,hard,heldout,all}
     python eval.py --compare RUN_A RUN_B [--split S] [--data DIR]      # A - B, paired over scenes
+    python eval.py --compare RUN RUN --precision bf16 fp32              # the same checkpoint in bf16 against fp32
 
 Per split: one confusion matrix over the whole split, on cells whose true visibility p(o) >= 0.5
 and whose true class is valid; per-class IoU from it; occlusion IoU of the binarised visibility
@@ -39,6 +40,8 @@ def main(argv=None) -> int:
     p.add_argument("--pictures", type=int, default=4, help="frames per split drawn as pictures (default 4)")
     p.add_argument("--save-predictions", action="store_true", help="write every frame's prediction as predictions/<scene>_<frame>.npz")
     p.add_argument("--threads", type=int, default=0, help="torch threads (default: torch's choice)")
+    p.add_argument("--precision", nargs="+", choices=("fp32", "bf16"), metavar="P",
+                   help="run the model in fp32 or bf16 (default: as trained); with --compare, A's then B's (one value: both)")
     a = p.parse_args(argv)
     if a.pictures < 0:
         raise EvalError(f"--pictures: must be >= 0, got {a.pictures}")
@@ -46,15 +49,18 @@ def main(argv=None) -> int:
         raise EvalError(f"--threads: must be >= 0, got {a.threads}")
     if a.threads:
         torch.set_num_threads(a.threads)
+    precision = a.precision or [None]
+    if len(precision) > (2 if a.compare else 1):
+        raise EvalError(f"--precision: {'two values at most (A, B)' if a.compare else 'one value'}, got {len(precision)}")
     if a.compare:
         if a.config or a.save_predictions:
             raise EvalError("--compare: takes neither --config nor --save-predictions")
-        table, out = compare_checkpoints(*a.compare, a.split, a.out, a.data)
+        table, out = compare_checkpoints(*a.compare, a.split, a.out, a.data, precision=(precision[0], precision[-1]))
         print(table)
         print(f"written {out}/{out.comparison.name} and {out.comparison_table.name}")
         return 0
     expect = load_config(a.config) if a.config else None
-    table, out = evaluate_checkpoint(a.checkpoint, a.split, a.out, a.data, expect, a.pictures, a.save_predictions)
+    table, out = evaluate_checkpoint(a.checkpoint, a.split, a.out, a.data, expect, a.pictures, a.save_predictions, precision[0])
     print(table)
     print(f"written {out}/{out.metrics.name}, {out.table.name}, {EvalDir.CONFUSION_GLOB} and {EvalDir.FRAME_GLOB}")
     return 0

@@ -144,6 +144,7 @@ def main(argv=None) -> int:
     p.add_argument("--out", required=True, help="output folder: <frame>.npz and <frame>.png")
     p.add_argument("--no-pictures", action="store_true", help="write only the .npz predictions")
     p.add_argument("--threads", type=int, default=0, help="torch threads (default: torch's choice)")
+    p.add_argument("--precision", choices=("fp32", "bf16"), help="run the model in fp32 or bf16 (default: as trained)")
     a = p.parse_args(argv)
     if a.threads < 0:
         raise PredictError(f"--threads: must be >= 0, got {a.threads}")
@@ -152,6 +153,9 @@ def main(argv=None) -> int:
     frames = frame_folders(Path(a.frames))
     out = output_dir(Path(a.out))
     model, cfg, ckpt = load_checkpoint(checkpoint_path(a.checkpoint))
+    if a.precision:
+        cfg = {**cfg, "model": {**cfg["model"], "precision": a.precision}}
+        model.bf16 = a.precision == "bf16"
     from dataset_tools import TRAIN_CLASSES
 
     class_names = list(TRAIN_CLASSES)[: ckpt["num_classes"]]

@@ -162,13 +162,17 @@ def evaluate_split(model, cfg, index: DatasetIndex, split: str, out: EvalDir, pi
     return res
 
 
-def open_checkpoint(checkpoint, data=None, expect_config: dict | None = None):
+def open_checkpoint(checkpoint, data=None, expect_config: dict | None = None, precision: str | None = None):
     """-> (model in eval mode, config, checkpoint dict, DatasetIndex) for scoring a checkpoint on
-    its data set (or on `data`, a data set root with the same cameras and classes)."""
+    its data set (or on `data`, a data set root with the same cameras and classes); `precision`
+    (fp32 | bf16) runs it in another precision than it was trained in (model.precision)."""
     if not Path(checkpoint).is_file():
         raise EvalError(f"{checkpoint}: no such checkpoint")
     model, cfg, ckpt = load_checkpoint(checkpoint, expect_config=expect_config)
     model.eval()
+    if precision:
+        model.bf16 = precision == "bf16"
+        cfg = {**cfg, "model": {**cfg["model"], "precision": precision}}
     if data:
         cfg = {**cfg, "data": {**cfg["data"], "root": data}}
     index = DatasetIndex(cfg["data"]["root"])
@@ -186,12 +190,12 @@ def evaluate_splits(model, cfg, index: DatasetIndex, splits, out: EvalDir, pictu
 
 
 def evaluate_checkpoint(checkpoint, split: str = "all", out=None, data=None, expect_config: dict | None = None,
-                        pictures: int = 4, save_predictions: bool = False) -> tuple[str, EvalDir]:
+                        pictures: int = 4, save_predictions: bool = False, precision: str | None = None) -> tuple[str, EvalDir]:
     """eval.py: score a checkpoint (or a run folder's latest.pt) on `split` (one of SPLITS, or all:
     every split that has frames); writes metrics.json and table.md (and the pictures) into `out`
     (default: the run folder's eval/). -> (the Markdown table, the output folder)."""
     checkpoint = checkpoint_path(checkpoint)
-    model, cfg, ckpt, index = open_checkpoint(checkpoint, data, expect_config)
+    model, cfg, ckpt, index = open_checkpoint(checkpoint, data, expect_config, precision)
     splits = [s for s in SPLITS if index.splits.get(s)] if split == "all" else [split]
     if not splits:
         raise EvalError(f"{index.root}: no split has frames")
@@ -200,22 +204,23 @@ def evaluate_checkpoint(checkpoint, split: str = "all", out=None, data=None, exp
     results = evaluate_splits(model, cfg, index, splits, out, pictures, save_predictions)
     method = f"LSS-fisheye ({Path(checkpoint).parent.name}, {cfg['model']['pooling']} pooling)"
     report = {"checkpoint": str(checkpoint), "data": str(cfg["data"]["root"]), "step": ckpt.get("step"),
-              "class_names": index.class_names, "splits": results}
+              "precision": cfg["model"]["precision"], "class_names": index.class_names, "splits": results}
     write_json_atomic(out.metrics, report, indent=2)
     table = markdown_table(results, method)
     write_text_atomic(out.table, table)
     return table, out
 
 
-def compare_checkpoints(checkpoint_a, checkpoint_b, split: str = "all", out=None, data=None, n: int = 1000) -> tuple[str, EvalDir]:
+def compare_checkpoints(checkpoint_a, checkpoint_b, split: str = "all", out=None, data=None, n: int = 1000,
+                        precision: tuple[str | None, str | None] = (None, None)) -> tuple[str, EvalDir]:
     """eval.py --compare: score two checkpoints (or run folders) on the same frames (`data`, default
     A's data set) and bootstrap the difference A - B over scenes, paired (each resample draws the
-    same scenes for both). Writes comparison.json and comparison.md into `out` (default
+    same scenes for both); `precision` (A's, B's) as open_checkpoint's. Writes comparison.json and comparison.md into `out` (default
     `<A's run folder>/compare_<B's run folder name>`), each side's confusion pictures in a/ and b/.
     -> (the Markdown table, the output folder)."""
     a, b = checkpoint_path(checkpoint_a), checkpoint_path(checkpoint_b)
-    model_a, cfg_a, ckpt_a, index = open_checkpoint(a, data)
-    model_b, cfg_b, ckpt_b, _ = open_checkpoint(b, str(index.root))
+    model_a, cfg_a, ckpt_a, index = open_checkpoint(a, data, precision=precision[0])
+    model_b, cfg_b, ckpt_b, _ = open_checkpoint(b, str(index.root), precision=precision[1])
     if cfg_a["data"]["grid"] != cfg_b["data"]["grid"]:
         raise EvalError(f"{b}: scores on the grid {cfg_b['data']['grid']}, {a} on {cfg_a['data']['grid']}: not the same cells to compare")
     splits = [s for s in SPLITS if index.splits.get(s)] if split == "all" else [split]
@@ -225,7 +230,8 @@ def compare_checkpoints(checkpoint_a, checkpoint_b, split: str = "all", out=None
     output_dir(out.root)
     for side in ("a", "b"):
         out.side(side).root.mkdir(parents=True, exist_ok=True)
-    report = {"a": {"checkpoint": str(a), "step": ckpt_a.get("step")}, "b": {"checkpoint": str(b), "step": ckpt_b.get("step")},
+    report = {"a": {"checkpoint": str(a), "step": ckpt_a.get("step"), "precision": cfg_a["model"]["precision"]},
+              "b": {"checkpoint": str(b), "step": ckpt_b.get("step"), "precision": cfg_b["model"]["precision"]},
               "data": str(index.root), "class_names": index.class_names, "resamples": n, "splits": {}}
     for s in splits:
         ra = evaluate_split(model_a, cfg_a, index, s, out.side("a"))

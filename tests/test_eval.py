@@ -190,6 +190,15 @@ def test_eval_of_a_trained_checkpoint_equals_a_recomputation_from_its_prediction
     assert "| train | 7 | mIoU |" in r.stdout and "| +0.000 | [+0.000, +0.000] | undecided |" in r.stdout
     assert (cmp_out / "a" / "confusion_train.png").is_file() and (cmp_out / "b" / "confusion_train.png").is_file()
 
+    # --precision bf16 fp32: the same checkpoint in bf16 against fp32 (model.precision), recorded per side
+    r = subprocess.run([sys.executable, "eval.py", "--compare", str(tmp_path / "run"), str(tmp_path / "run"), "--precision", "bf16", "fp32",
+                        "--out", str(tmp_path / "cmp16"), "--threads", "1"], capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr[-2000:]
+    cmp = json.loads((tmp_path / "cmp16" / "comparison.json").read_text())
+    assert (cmp["a"]["precision"], cmp["b"]["precision"]) == ("bf16", "fp32")
+    assert cmp["splits"]["train"]["b"]["overall"] == pytest.approx(res["overall"], nan_ok=True)  # B is the fp32 eval
+    assert abs(cmp["splits"]["train"]["difference"]["miou"]["diff"]) < 0.1  # rounding, not another model
+
     # a run folder stands for its latest.pt; the output goes to the run's eval/ by default
     r = subprocess.run([sys.executable, "eval.py", "--checkpoint", str(tmp_path / "run"), "--split", "train", "--pictures", "0",
                         "--threads", "1"], capture_output=True, text=True, timeout=600)
@@ -211,6 +220,8 @@ def test_eval_of_a_trained_checkpoint_equals_a_recomputation_from_its_prediction
         (["--compare", ckpt, ckpt, "--split", "hard"], "split 'hard' has no frames"),
         (["--compare", ckpt, ckpt, "--checkpoint", ckpt], "argument --checkpoint: not allowed with argument --compare"),
         (["--compare", ckpt], "argument --compare: expected 2 arguments"),
+        (["--checkpoint", ckpt, "--precision", "bf16", "fp32"], "--precision: one value, got 2"),
+        (["--checkpoint", ckpt, "--precision", "fp16"], "argument --precision: invalid choice: 'fp16'"),
     ]:
         r = subprocess.run([sys.executable, "eval.py", "--out", str(tmp_path / "bad"), *args], capture_output=True, text=True, timeout=300)
         assert r.returncode == 2, (args, r.stderr)
