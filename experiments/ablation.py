@@ -1,6 +1,6 @@
 """The paper's Tables I and II on our data, as one resumable command.
 
-    python -m experiments.ablation --steps 420 --seeds 3 [--seeds-table2 2] [--scale cpu|gpu] [--data DIR] [--out DIR]
+    python -m experiments.ablation --steps 420 --seeds 3 [--seeds-table2 2] [--scale cpu|gpu] [--data DIR] [--out DIR] [--jobs N]
     python -m experiments.ablation --budget-minutes 8 --seeds 1 ...   # equal wall-clock budgets instead
 
 Every row is the base config (`--scale cpu`: configs/train/cpu_default.yaml; `gpu`:
@@ -17,7 +17,10 @@ the per-scene matrices); a killed row resumes from its latest.pt and its recorde
 (`budget.json`).
 Writes `<out>/tables.md` and `<out>/tables.json` with the paper's numbers beside ours: the mean over
 seeds with its 95 % interval over seeds and scenes (model.bootstrap), and a verdict on each of the
-paper's claims (CLAIMS) from the paired difference's interval (`verdict`).
+paper's claims (CLAIMS) from the paired difference's interval (`verdict`), with the seeds that
+would decide what is undecided (`runs_to_decide`). Rows of our own (SUPERVISION: issue 22's
+supervision from the renderer, issue 23's bf16) get a table on every split and a verdict each
+against `ours` (OUR_CLAIMS). `--jobs N` trains N rows at once (`run_jobs`).
 """
 
 from __future__ import annotations
