@@ -101,9 +101,7 @@ def main(argv=None):
         feats = splat(d2, c2, index)
         marks.append(time.perf_counter())
         f2 = feats.detach().requires_grad_()
-        x_, y_ = model.grid.shape
-        y = model.bev(model.pool(f2.view(depth.shape[0], x_, y_, -1)))
-        out = {"semantic": model.semantic_head(y), "occlusion": model.occlusion_head(y)[:, 0]}
+        out = model.bev_outputs(f2, index, *depth.shape[:2], batch.get("intrinsics"))
         marks.append(time.perf_counter())
         loss, _ = total_loss(out, batch, alpha)
         marks.append(time.perf_counter())

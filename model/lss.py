@@ -70,6 +70,21 @@ class LSSFisheye(nn.Module):
         """bfloat16 autocast on x's device where model.precision is bf16, else nothing."""
         return torch.autocast(x.device.type, dtype=torch.bfloat16, enabled=self.bf16)
 
+    def bev_outputs(self, feats, index, b: int, n: int, intrinsics=None) -> dict:
+        """The splat's output (features per cell, or per camera and cell) -> {'semantic',
+        'occlusion'}: camera pooling, the BEV encoder and the heads."""
+        x_, y_ = self.grid.shape
+        if self.pooling_kind == "sum":
+            pooled = self.pool(feats.view(b, x_, y_, -1))
+        else:
+            cover = splat_count(index).view(b, n, x_, y_) if self.pooling_kind == "intrinsics_embedding" else None
+            if intrinsics is None:
+                intrinsics = self.nominal_intrinsics[None].expand(b, -1, -1)
+            pooled = self.pool(feats.view(b, n, x_, y_, -1), cover, intrinsics)
+        with self._autocast(pooled):
+            y = self.bev(pooled)
+            return {"semantic": self.semantic_head(y).float(), "occlusion": self.occlusion_head(y)[:, 0].float()}
+
     def lift(self, images):
         """images (B, N, 3, H, W) in [0, 1] -> depth probabilities (B, N, D, h, w), context (B, N, C, h, w)."""
         depth_logits, ctx = self.lift_logits(images)
@@ -102,18 +117,7 @@ class LSSFisheye(nn.Module):
         if point_cell is not None and point_cell.shape[2:] != depth.shape[2:]:
             raise ValueError(f"model: point_cell {tuple(point_cell.shape)} does not match the features {tuple(depth.shape)}")
         index = self._index(point_cell, b)
-        feats = splat(depth, ctx, index)
-        x_, y_ = self.grid.shape
-        if self.pooling_kind == "sum":
-            pooled = self.pool(feats.view(b, x_, y_, -1))
-        else:
-            cover = splat_count(index).view(b, n, x_, y_) if self.pooling_kind == "intrinsics_embedding" else None
-            if intrinsics is None:
-                intrinsics = self.nominal_intrinsics[None].expand(b, -1, -1)
-            pooled = self.pool(feats.view(b, n, x_, y_, -1), cover, intrinsics)
-        with self._autocast(pooled):
-            y = self.bev(pooled)
-            out = {"semantic": self.semantic_head(y).float(), "occlusion": self.occlusion_head(y)[:, 0].float()}
+        out = self.bev_outputs(splat(depth, ctx, index), index, b, n, intrinsics)
         if self.training:
             out["depth_logits"] = depth_logits
             if self.camera_head is not None:

@@ -1,0 +1,22 @@
+"""bench.profile_step on a toy data set: every part of a step is timed, for every pooling (the
+model's own bev_outputs runs the pooling, encoder and heads)."""
+
+import subprocess
+import sys
+from pathlib import Path
+
+from testing.toy_data import write_toy_dataset
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_profile_step_times_every_part_with_another_pooling(tmp_path):
+    root = write_toy_dataset(tmp_path / "toy", frames=12, splits=("train",))
+    r = subprocess.run([sys.executable, "-m", "bench.profile_step", str(root), "--steps", "3", "--no-profiler",
+                        "--set", "train.threads=1", "model.pooling=intrinsics_embedding", "data.input_size=[64,40]",
+                        "data.grid={bound: 25.0, res: 0.5}", "model.bev_encoder.widths=[8,16,16]"],
+                       cwd=ROOT, capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr[-2000:]
+    for part in ("trunk fwd", "splat fwd", "bev encoder+heads fwd", "bev encoder+heads bwd", "trunk bwd", "whole step"):
+        line = next(ln for ln in r.stdout.splitlines() if ln.strip().startswith(part))
+        assert float(line.split()[-1]) > 0, line
