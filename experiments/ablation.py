@@ -327,7 +327,8 @@ def claims(results: dict[str, list[dict]], class_names, which=None) -> list[dict
         counted = [p["verdict"] for p in parts if p["paper_split"]]
         complete = len(counted) == len(pairs) * len(paper_splits)
         v = combine(counted) if complete or "contradicted" in counted else "undecided"
-        out.append({"claim": claim, "splits": list(paper_splits), "verdict": v, "complete": complete, "parts": parts})
+        one_seed = any(min(p["seeds"]) < 2 for p in parts)  # the interval then holds the scenes' spread, not training's
+        out.append({"claim": claim, "splits": list(paper_splits), "verdict": v, "complete": complete, "one_seed": one_seed, "parts": parts})
     return out
 
 
@@ -355,7 +356,8 @@ def _verdict_lines(cs: list[dict]) -> list[str]:
     """A claim's verdict table and its parts' table (markdown lines)."""
     lines = ["| Claim | Verdict |", "|---|---|"]
     for c in cs:
-        lines.append(f"| {c['claim']} | **{c['verdict']}**" + ("" if c["complete"] else " (rows or splits missing)") + " |")
+        lines.append(f"| {c['claim']} | **{c['verdict']}**" + ("" if c["complete"] else " (rows or splits missing)")
+                     + (" (one seed: training noise not in the interval, provisional)" if c.get("one_seed") else "") + " |")
     lines += ["", "| Claim | Better - worse | Split | Seeds | Scenes | Difference | 95 % interval | Smallest detectable | Verdict | Seeds to decide |",
               "|---|---|---|---|---|---|---|---|---|---|"]
     for c in cs:
