@@ -401,7 +401,7 @@ def descendants(pid: int) -> list[int]:
 
 def survivors_of_kill_9(p: subprocess.Popen, after_s: float = 1.0) -> list[str]:
     """kill -9 of `p` alone (not its group); -> the processes it had started that are still alive
-    `after_s` seconds later (pid and command line)."""
+    `after_s` seconds later (pid and command line); returns as soon as none is."""
     import time
 
     ours = descendants(p.pid)
@@ -409,8 +409,10 @@ def survivors_of_kill_9(p: subprocess.Popen, after_s: float = 1.0) -> list[str]:
     t0 = time.monotonic()
     p.kill()
     p.wait()
-    time.sleep(max(0.0, after_s - (time.monotonic() - t0)))
     left = [q for q in ours if alive(q)]
+    while left and time.monotonic() - t0 < after_s:  # the outcome at after_s, found sooner where all are gone
+        time.sleep(0.05)
+        left = [q for q in left if alive(q)]
     names = []
     for q in left:
         with contextlib.suppress(OSError):
