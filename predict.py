@@ -30,7 +30,7 @@ from common.files import output_dir, write_bytes_atomic
 from dataset_tools.stitch import IMAGE_SUFFIXES, read_images, rig_for
 from geometry.rig import Rig, RigCamera
 from model.augment import warp_image
-from model.checkpoint import load_checkpoint
+from model.checkpoint import in_precision, load_checkpoint
 from model.frustum import Frustum
 from model.predict import Prediction, predict
 from model.rectified import model_rig, rectifier
@@ -154,8 +154,7 @@ def main(argv=None) -> int:
     out = output_dir(Path(a.out))
     model, cfg, ckpt = load_checkpoint(checkpoint_path(a.checkpoint))
     if a.precision:
-        cfg = {**cfg, "model": {**cfg["model"], "precision": a.precision}}
-        model.bf16 = a.precision == "bf16"
+        cfg = in_precision(model, cfg, a.precision)
     from dataset_tools import TRAIN_CLASSES
 
     class_names = list(TRAIN_CLASSES)[: ckpt["num_classes"]]

@@ -226,7 +226,7 @@ def _child_train(data_root: str, steps: int, trunk: str = "scratch", precision: 
     from model.config import load_config
     from model.losses import total_loss
 
-    over = {"data": {"root": data_root}, "model": {"trunk": trunk, **({} if precision == "fp32" else {"precision": precision})}}
+    over = {"data": {"root": data_root}, "model": {"trunk": trunk, "precision": precision}}
     cfg = load_config(ROOT / "configs/train/cpu_default.yaml", over)
     t = cfg["train"]
     model, opt, alpha, loader = training_setup(cfg)
@@ -256,7 +256,7 @@ def _child_infer(repeat: int, trunk: str = "scratch", precision: str = "fp32") -
     from model.config import load_config
     from model.cpu import tune_cpu
 
-    cfg = load_config(ROOT / "configs/train/cpu_default.yaml", {"model": {"trunk": trunk, **({} if precision == "fp32" else {"precision": precision})}})
+    cfg = load_config(ROOT / "configs/train/cpu_default.yaml", {"model": {"trunk": trunk, "precision": precision}})
     torch.manual_seed(0)
     model = build_model(cfg, load_rig(ROOT / "configs/rigs/default.yaml")).eval()
     tune_cpu(cfg, torch.device("cpu"), model)

@@ -100,6 +100,13 @@ def load_checkpoint(path, expect_config: dict | None = None):
     return model, ckpt["config"], ckpt
 
 
+def in_precision(model, cfg: dict, precision: str) -> dict:
+    """Run a loaded model in `precision` (fp32 | bf16, model.precision) rather than the one it was
+    trained in; -> its config saying so."""
+    model.bf16 = precision == "bf16"
+    return {**cfg, "model": {**cfg["model"], "precision": precision}}
+
+
 def load_weights(model, state, path) -> None:
     """model.load_state_dict(state), a mismatch (another shape, missing keys) being one CheckpointError line."""
     try:

@@ -26,7 +26,7 @@ from common.lifetime import DieWithParent
 from dataset_tools import SPLITS, DatasetIndex, read_frame
 
 from .bootstrap import paired_bootstrap, per_scene_arrays, scene_bootstrap
-from .checkpoint import load_checkpoint
+from .checkpoint import in_precision, load_checkpoint
 from .data import BevDataset
 from .eval_report import comparison_table, confusion_picture, frame_picture, markdown_table
 from .metrics import BevMetrics, confusion, occlusion_confusion
@@ -171,8 +171,7 @@ def open_checkpoint(checkpoint, data=None, expect_config: dict | None = None, pr
     model, cfg, ckpt = load_checkpoint(checkpoint, expect_config=expect_config)
     model.eval()
     if precision:
-        model.bf16 = precision == "bf16"
-        cfg = {**cfg, "model": {**cfg["model"], "precision": precision}}
+        cfg = in_precision(model, cfg, precision)
     if data:
         cfg = {**cfg, "data": {**cfg["data"], "root": data}}
     index = DatasetIndex(cfg["data"]["root"])
