@@ -9,6 +9,9 @@
   under bf16 autocast (`model.precision: bf16`, `_bf16` figures, and `_bf16_vs_fp32` ratios against
   this checkout's fp32, measured alternating).
 - cylindrical rectification (the paper's baseline): ms per four-camera frame, tables per rig.
+- the roofline (issue 23): GFLOP of a training step for each trunk (`step_gflop`), this machine's
+  matrix-multiply rate in fp32 and bf16 (`matmul_gflops`, the roof a convolution-bound step cannot
+  pass), and the share of that roof the measured training step reaches (`train_share_of_matmul_peak`).
 
     PYTHONPATH=. python -m bench.model
 """
@@ -95,6 +98,12 @@ def naive_pool(depth, context, point_cell, cells, sum_cameras=True):
     """Naive scatter: the full frustum features, masked, index_add_ into the grid (autograd)."""
     x, grid, rows = _frustum(depth, context, point_cell, cells, sum_cameras)
     return x.new_zeros(rows, x.shape[1]).index_add(0, grid, x)
+
+
+def _seconds(fn) -> float:
+    t = time.perf_counter()
+    fn()
+    return time.perf_counter() - t
 
 
 def _time(fn, repeat=5):
@@ -268,6 +277,60 @@ def _child_infer(repeat: int, trunk: str = "scratch", precision: str = "fp32") -
     return {f"infer_ms_per_frame{sfx}": ms, f"infer_peak_rss_mb{sfx}": _peak_rss_mb()}
 
 
+def step_gflop(trunk: str = "scratch") -> dict:
+    """GFLOP of one cpu_default training step (its batch of four-camera frames): torch's flop counter
+    over the forward pass, times 3 (the backward computes, per forward product, one for the input's
+    gradient and one for the weights'). Counted from the forward because the flop counter overcounts
+    the backward of grouped (depthwise) convolutions; tests/test_bench_roofline.py checks the factor
+    on the scratch trunk, which has none."""
+    from torch.utils.flop_counter import FlopCounterMode
+
+    from geometry.rig import load_rig
+    from model import build_model
+    from model.config import load_config
+
+    cfg = load_config(ROOT / "configs/train/cpu_default.yaml", {"model": {"trunk": trunk}})
+    rig = load_rig(ROOT / "configs/rigs/default.yaml")
+    model = build_model(cfg, rig)
+    w, h = cfg["data"]["input_size"]
+    x = torch.rand(cfg["train"]["batch_size"], len(rig.names), 3, h, w)
+    with torch.no_grad(), FlopCounterMode(display=False) as fc:
+        model(x)
+    return {f"train_gflop_per_step{_sfx(trunk, 'fp32')}": 3 * fc.get_total_flops() / 1e9}
+
+
+def matmul_gflops(n: int = 2048, repeat: int = 8) -> dict:
+    """The best rate of an n x n matrix product with model.cpu's thread count, in fp32 and bf16:
+    what oneDNN's convolutions (matrix products underneath) can reach on this machine at most."""
+    from model.cpu import compute_threads
+
+    torch.set_num_threads(compute_threads())
+    out = {}
+    for name, dtype in (("fp32", torch.float32), ("bf16", torch.bfloat16)):
+        a, b = torch.rand(n, n, dtype=dtype), torch.rand(n, n, dtype=dtype)
+        a @ b  # warm-up
+        best = min(_seconds(lambda: a @ b) for _ in range(repeat))
+        out[f"matmul_gflops_{name}"] = 2 * n**3 / best / 1e9
+    return out
+
+
+def roofline(res: dict, trunks) -> dict:
+    """The training figures in `res` as a share of this machine's matrix-multiply rate: the step's
+    GFLOP times steps/s over the rate (fp32 figures against fp32's, bf16 against bf16's)."""
+    from model.config import load_config
+
+    batch = load_config(ROOT / "configs/train/cpu_default.yaml")["train"]["batch_size"]
+    out = _in_child("matmul_gflops")
+    for trunk in trunks:
+        out.update(_in_child("step_gflop", trunk))
+        gflop = out[f"train_gflop_per_step{_sfx(trunk, 'fp32')}"]
+        for precision in ("fp32", "bf16"):
+            sps = res.get(f"train_samples_per_s{_sfx(trunk, precision)}")
+            if sps:
+                out[f"train_share_of_matmul_peak{_sfx(trunk, precision)}"] = sps / batch * gflop / out[f"matmul_gflops_{precision}"]
+    return out
+
+
 def bench_rectify(repeat: int = 10) -> dict:
     """Cylindrical rectification (the paper's baseline) of a four-camera 480x302 frame: the remap
     tables' one-off cost per rig and the cost per frame."""
@@ -368,6 +431,7 @@ def run(train_steps: int = 12, infer_repeat: int = 20, baseline: str | None = No
             for fn, *args in children:
                 res.update(_in_child(fn, *args))
         res.update(precision_versus(children, rounds))
+    res.update(roofline(res, trunks))
     res.update(bench_rectify())
     res["load_average_1min_at_end"] = os.getloadavg()[0]
     res["goals"] = dict(GOALS, **(RATIO_GOALS if baseline else {}))

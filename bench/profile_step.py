@@ -84,6 +84,9 @@ def main(argv=None):
              "bev encoder+heads bwd", "splat bwd", "trunk bwd", "optimiser (clip+step)", "whole step"]
     times = {k: [] for k in names}
     steps = min(args.steps, len(sampler))
+    if steps < 3:
+        raise SystemExit(f"{args.data}: {len(sampler)} training batches of {t['batch_size']} with --steps {args.steps}; "
+                         "the profile needs at least 3 (warm-up, then the steps it times)")
     it = iter(loader)
     prof = None
     if not args.no_profiler:
