@@ -316,12 +316,18 @@ def claims(results: dict[str, list[dict]], class_names, which=None) -> list[dict
         parts = []
         for better, worse in pairs:
             for split in EVAL_SPLITS:
-                ra, rb = (_runs(results.get(r, []), split) for r in (better, worse))
-                if not ra or not rb or ra[0][0].shape != rb[0][0].shape:
+                ra_all, rb_all = results.get(better, []), results.get(worse, [])
+                common = sorted({r["seed"] for r in ra_all} & {r["seed"] for r in rb_all})
+                paired = len(common) >= 2  # common random numbers: seed k of both rows, paired
+                if paired:
+                    ra_all, rb_all = ([r for r in rs if r["seed"] in common] for rs in (ra_all, rb_all))
+                    ra_all, rb_all = (sorted(rs, key=lambda r: r["seed"]) for rs in (ra_all, rb_all))
+                ra, rb = _runs(ra_all, split), _runs(rb_all, split)
+                if not ra or not rb or ra[0][0].shape != rb[0][0].shape or (paired and len(ra) != len(rb)):
                     continue
-                d = paired_runs_bootstrap(ra, rb, class_names)[VERDICT_KEY]
+                d = paired_runs_bootstrap(ra, rb, class_names, paired_seeds=paired)[VERDICT_KEY]
                 parts.append({"better": better, "worse": worse, "split": split, "paper_split": split in paper_splits,
-                              "seeds": [len(ra), len(rb)], "scenes": len(ra[0][0]), **d,
+                              "seeds": [len(ra), len(rb)], "paired_seeds": paired, "scenes": len(ra[0][0]), **d,
                               "detectable": detectable(d["low"], d["high"]), "verdict": verdict(d["low"], d["high"]),
                               "runs_to_decide": runs_to_decide(d["diff"], d["low"], d["high"], min(len(ra), len(rb)))})
         counted = [p["verdict"] for p in parts if p["paper_split"]]
@@ -363,7 +369,7 @@ def _verdict_lines(cs: list[dict]) -> list[str]:
     for c in cs:
         for p in c["parts"]:
             lines.append(f"| {c['claim'].split(' (')[0]} | {p['better']} - {p['worse']} | {p['split']}{'*' if p['paper_split'] else ''} | "
-                         f"{p['seeds'][0]}, {p['seeds'][1]} | {p['scenes']} | {_signed(p['diff'])} | "
+                         f"{p['seeds'][0]}, {p['seeds'][1]}{' paired' if p.get('paired_seeds') else ''} | {p['scenes']} | {_signed(p['diff'])} | "
                          f"[{_signed(p['low'])}, {_signed(p['high'])}] | {p['detectable']:.3f} | {p['verdict']} | {_decide_cell(p.get('runs_to_decide'))} |")
     return lines
 
@@ -416,7 +422,9 @@ def tables(results: dict[str, list[dict]], meta: dict) -> tuple[str, dict]:
     js["claims"] = claims(results, names)
     lines += ["", "## Verdicts on the paper's claims", "",
               "Per claim, the mIoU difference (paper's better row minus worse row, mean over seeds), its 95 % interval "
-              "from a bootstrap over seeds and scenes with the scenes paired, and the smallest difference this run "
+              "from a bootstrap over seeds and scenes with the scenes paired (and the seeds, where both rows have the "
+              "same two or more: seed k gives every row the same data order, augmentation and initial state), and the "
+              "smallest difference this run "
               "could have detected (the interval's half-width). **reproduced**: the interval is above 0; "
               "**contradicted**: below 0; **undecided**: it contains 0. The claim's verdict counts the paper's "
               "splits (marked *); the others are shown for information. Seeds to decide: for an undecided part, "

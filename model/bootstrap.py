@@ -139,14 +139,19 @@ def paired_bootstrap(a, b, class_names, n: int = RESAMPLES, seed: int = 0, level
     return paired_runs_bootstrap([a], [b], class_names, n, seed, level)
 
 
-def paired_runs_bootstrap(runs_a, runs_b, class_names, n: int = RESAMPLES, seed: int = 0, level: float = LEVEL) -> dict[str, dict]:
+def paired_runs_bootstrap(runs_a, runs_b, class_names, n: int = RESAMPLES, seed: int = 0, level: float = LEVEL,
+                          paired_seeds: bool = False) -> dict[str, dict]:
     """Mean over A's runs minus mean over B's runs (seeds), every run scored on the same scenes.
-    Each resample draws one set of scenes for both (paired over scenes) and A's and B's runs
-    independently (seeds are not paired). -> key -> {"a", "b", "diff", "low", "high"}."""
+    Each resample draws one set of scenes for both (paired over scenes) and A's and B's runs:
+    independently, or with `paired_seeds` (run i of A and of B trained from the same seed: the same
+    data order, augmentation and initial state, so they share that seed's luck) the same runs for
+    both. -> key -> {"a", "b", "diff", "low", "high"}."""
     _check_same_scenes([*runs_a, *runs_b])
+    if paired_seeds and len(runs_a) != len(runs_b):
+        raise ValueError(f"paired seeds need as many runs of A as of B, got {len(runs_a)} and {len(runs_b)}")
     counts = resample_counts(len(runs_a[0][0]), n, seed)
     va = _resampled_means(runs_a, class_names, counts, seed_draws(len(runs_a), n, seed))
-    vb = _resampled_means(runs_b, class_names, counts, seed_draws(len(runs_b), n, seed + 1))
+    vb = _resampled_means(runs_b, class_names, counts, seed_draws(len(runs_b), n, seed if paired_seeds else seed + 1))
     pa, pb = _point(runs_a, class_names), _point(runs_b, class_names)
     out = {}
     for key in va:

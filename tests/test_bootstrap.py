@@ -103,3 +103,17 @@ def test_runs_bootstrap_over_seeds_and_scenes():
     assert r["mean"] == pytest.approx(0.5) and (r["low"], r["high"]) == (0.25, 0.75)
     d = bootstrap.paired_runs_bootstrap([s1, s2], [s1, s2], NAMES)["iou/vehicle"]
     assert d["diff"] == 0.0 and d["low"] == -0.5 and d["high"] == 0.5  # seeds are drawn apart for A and B
+
+
+def test_paired_seeds_share_a_seeds_luck():
+    """Seed 1 is lucky for both rows (vehicle IoU 0.75 against 0.25), and A is 0.05 ahead at each
+    seed. Drawn apart, the seeds' spread swamps the 0.05; paired, every resample has A ahead."""
+    a1, a2 = stack(*[scene(30, 10)] * 3), stack(*[scene(12, 28)] * 3)  # 0.75, 0.30
+    b1, b2 = stack(*[scene(28, 12)] * 3), stack(*[scene(10, 30)] * 3)  # 0.70, 0.25
+    apart = bootstrap.paired_runs_bootstrap([a1, a2], [b1, b2], NAMES)["iou/vehicle"]
+    paired = bootstrap.paired_runs_bootstrap([a1, a2], [b1, b2], NAMES, paired_seeds=True)["iou/vehicle"]
+    assert apart["diff"] == paired["diff"] == pytest.approx(0.05)
+    assert apart["low"] < 0 < apart["high"]
+    assert paired["low"] == pytest.approx(0.05) and paired["high"] == pytest.approx(0.05)
+    with pytest.raises(ValueError, match="as many runs"):
+        bootstrap.paired_runs_bootstrap([a1, a2], [b1], NAMES, paired_seeds=True)
