@@ -108,11 +108,7 @@ def _seconds(fn) -> float:
 
 def _time(fn, repeat=5):
     fn()  # warm-up
-    ts = []
-    for _ in range(repeat):
-        t = time.perf_counter()
-        fn()
-        ts.append(time.perf_counter() - t)
+    ts = [_seconds(fn) for _ in range(repeat)]
     return sorted(ts)[len(ts) // 2]
 
 
@@ -257,20 +253,29 @@ def _child_train(data_root: str, steps: int, trunk: str = "scratch", precision: 
             f"train_peak_rss_mb{sfx}": _peak_rss_mb()}
 
 
-def _child_infer(repeat: int, trunk: str = "scratch", precision: str = "fp32") -> dict:
-    """Inference ms per four-camera frame of cpu_default, set up as a run of the config is
-    (model.cpu: threads, memory format)."""
+def _default_model(trunk: str, precision: str, frames: int | None = None):
+    """cpu_default's model (seeded) on the default rig and a random input of `frames` frames of its
+    cameras (default: the config's training batch): -> (config, model, input)."""
     from geometry.rig import load_rig
     from model import build_model
     from model.config import load_config
-    from model.cpu import tune_cpu
 
     cfg = load_config(ROOT / "configs/train/cpu_default.yaml", {"model": {"trunk": trunk, "precision": precision}})
+    rig = load_rig(ROOT / "configs/rigs/default.yaml")
     torch.manual_seed(0)
-    model = build_model(cfg, load_rig(ROOT / "configs/rigs/default.yaml")).eval()
-    tune_cpu(cfg, torch.device("cpu"), model)
+    model = build_model(cfg, rig)
     w, h = cfg["data"]["input_size"]
-    x = torch.rand(1, 4, 3, h, w)
+    return cfg, model, torch.rand(frames or cfg["train"]["batch_size"], len(rig.names), 3, h, w)
+
+
+def _child_infer(repeat: int, trunk: str = "scratch", precision: str = "fp32") -> dict:
+    """Inference ms per four-camera frame of cpu_default, set up as a run of the config is
+    (model.cpu: threads, memory format)."""
+    from model.cpu import tune_cpu
+
+    cfg, model, x = _default_model(trunk, precision, 1)
+    model.eval()
+    tune_cpu(cfg, torch.device("cpu"), model)
     with torch.inference_mode():
         ms = 1000 * _time(lambda: model(x), repeat)
     sfx = _sfx(trunk, precision)
@@ -285,15 +290,7 @@ def step_gflop(trunk: str = "scratch") -> dict:
     on the scratch trunk, which has none."""
     from torch.utils.flop_counter import FlopCounterMode
 
-    from geometry.rig import load_rig
-    from model import build_model
-    from model.config import load_config
-
-    cfg = load_config(ROOT / "configs/train/cpu_default.yaml", {"model": {"trunk": trunk}})
-    rig = load_rig(ROOT / "configs/rigs/default.yaml")
-    model = build_model(cfg, rig)
-    w, h = cfg["data"]["input_size"]
-    x = torch.rand(cfg["train"]["batch_size"], len(rig.names), 3, h, w)
+    _, model, x = _default_model(trunk, "fp32")
     with torch.no_grad(), FlopCounterMode(display=False) as fc:
         model(x)
     return {f"train_gflop_per_step{_sfx(trunk, 'fp32')}": 3 * fc.get_total_flops() / 1e9}
