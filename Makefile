@@ -36,10 +36,10 @@ browser:
 	  apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $$missing >/dev/null; \
 	fi
 
-# Options: make dataset PRESET=small DATA=data/small WORKERS=2 BACKEND=ray (cluster: RAY_ADDRESS); make train CONFIG=...; make eval SPLIT=hard
-PRESET ?= small
+# Options: make dataset PRESET=medium DATA=data/medium WORKERS=2 BACKEND=ray (cluster: RAY_ADDRESS); make train CONFIG=...; make eval SPLIT=hard
+PRESET ?= medium
 DATA ?= data/$(PRESET)
-CONFIG ?= configs/train/cpu_default.yaml
+CONFIG ?= configs/train/cpu_medium.yaml
 RUN ?= runs/$(basename $(notdir $(CONFIG)))
 SPLIT ?= all
 WORKERS ?=

@@ -2,8 +2,10 @@
 config validation and checkpoints."""
 
 import math
+import re
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -244,13 +246,29 @@ def test_config_validation_and_train_cli_exit_code(tmp_path):
 def test_every_shipped_config_validates():
     from model.config import load_config
 
-    names = ["cpu_default", "paper", "mixed_rig"] + [f"pool_{p}" for p in ("sum", "max", "weighted_sum", "sensors_per_cell", "intrinsics_embedding")]
+    names = sorted(p.stem for p in Path("configs/train").glob("*.yaml"))
+    assert {"cpu_default", "cpu_medium", "demo", "paper", "mixed_rig", "pool_sum"} <= set(names)
     for n in names:
         cfg = load_config(f"configs/train/{n}.yaml")
         if n.startswith("pool_"):
             assert cfg["model"]["pooling"] == n[5:]
     assert load_config("configs/train/paper.yaml")["data"]["input_size"] == [480, 302]
     assert load_config("configs/train/paper.yaml")["train"]["batch_size"] == 64
+
+
+def test_the_makefiles_default_chain_agrees_with_itself():
+    """`make dataset` writes data/$(PRESET); `make train`'s default config must train on that folder
+    and validate on a split the preset has."""
+    import yaml
+    from model.config import load_config
+
+    make = Path("Makefile").read_text()
+    preset = re.search(r"^PRESET \?= (\S+)$", make, re.M).group(1)
+    config = re.search(r"^CONFIG \?= (\S+)$", make, re.M).group(1)
+    cfg = load_config(config)
+    assert cfg["data"]["root"] == f"data/{preset}", (config, cfg["data"]["root"], preset)
+    splits = {s["split"] for s in yaml.safe_load(Path(f"configs/dataset/{preset}.yaml").read_text())["scenes"]}
+    assert cfg["data"]["train_split"] in splits and cfg["data"]["val_split"] in splits, splits
 
 
 def test_checkpoint_roundtrip_and_refuses_other_config(tmp_path):
