@@ -117,7 +117,10 @@ while True:  # until end of file: the command has ended (or was killed); meanwhi
                 known[c] = started(c)
                 todo.append(c)
 
-end = time.time() + 5
+# Kill until a whole second has passed with nothing left to kill (8 s at most): a process forked just
+# as its parent was killed can show up in /proc after a scan that found nothing (seen with Ray's
+# DashboardAgent on a loaded machine), so one empty scan is not the end.
+end, quiet_since = time.time() + 8, None
 while time.time() < end:
     pids = [p for p, t in known.items() if t is not None and started(p) == t]
     pids += [p for p in marked() if p != me and started(p) is not None]
@@ -127,7 +130,11 @@ while time.time() < end:
         except OSError:
             pass
     known = {p: t for p, t in known.items() if started(p) == t}
-    if not pids:
+    if pids:
+        quiet_since = None
+    elif quiet_since is None:
+        quiet_since = time.time()
+    elif time.time() - quiet_since >= 1.0:
         break
     time.sleep(0.05)
 """
