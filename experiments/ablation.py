@@ -315,13 +315,12 @@ def claims(results: dict[str, list[dict]], class_names, which=None) -> list[dict
     for claim, pairs, paper_splits in CLAIMS if which is None else which:
         parts = []
         for better, worse in pairs:
+            ra_all, rb_all = results.get(better, []), results.get(worse, [])
+            common = {r["seed"] for r in ra_all} & {r["seed"] for r in rb_all}
+            paired = len(common) >= 2  # common random numbers: seed k of both rows, paired
+            if paired:
+                ra_all, rb_all = ([r for r in sorted(rs, key=lambda r: r["seed"]) if r["seed"] in common] for rs in (ra_all, rb_all))
             for split in EVAL_SPLITS:
-                ra_all, rb_all = results.get(better, []), results.get(worse, [])
-                common = sorted({r["seed"] for r in ra_all} & {r["seed"] for r in rb_all})
-                paired = len(common) >= 2  # common random numbers: seed k of both rows, paired
-                if paired:
-                    ra_all, rb_all = ([r for r in rs if r["seed"] in common] for rs in (ra_all, rb_all))
-                    ra_all, rb_all = (sorted(rs, key=lambda r: r["seed"]) for rs in (ra_all, rb_all))
                 ra, rb = _runs(ra_all, split), _runs(rb_all, split)
                 if not ra or not rb or ra[0][0].shape != rb[0][0].shape or (paired and len(ra) != len(rb)):
                     continue

@@ -259,7 +259,7 @@ def test_every_shipped_config_validates():
 def test_the_makefiles_default_chain_agrees_with_itself():
     """`make dataset` writes data/$(PRESET); `make train`'s default config must train on that folder
     and validate on a split the preset has."""
-    import yaml
+    from dataset_tools.generation.config import load_config as load_dataset_config
     from model.config import load_config
 
     make = Path("Makefile").read_text()
@@ -267,7 +267,7 @@ def test_the_makefiles_default_chain_agrees_with_itself():
     config = re.search(r"^CONFIG \?= (\S+)$", make, re.M).group(1)
     cfg = load_config(config)
     assert cfg["data"]["root"] == f"data/{preset}", (config, cfg["data"]["root"], preset)
-    splits = {s["split"] for s in yaml.safe_load(Path(f"configs/dataset/{preset}.yaml").read_text())["scenes"]}
+    splits = {s["split"] for s in load_dataset_config(f"configs/dataset/{preset}.yaml")["scenes"]}
     assert cfg["data"]["train_split"] in splits and cfg["data"]["val_split"] in splits, splits
 
 
