@@ -110,10 +110,12 @@ while True:  # until end of file: the command has ended (or was killed); meanwhi
     ready = select.select([0], [], [], 0.2)[0]
     if ready and not os.read(0, 4096):
         break
-    todo = [parent]
+    # the whole tree every time: a known process (Ray's raylet) starts children (its agents) later
+    todo, seen = [parent], set()
     while todo:
         for c in children(todo.pop()):
-            if c != me and c not in known:
+            if c != me and c not in seen:
+                seen.add(c)
                 known[c] = started(c)
                 todo.append(c)
 
