@@ -10,6 +10,7 @@ from pathlib import Path
 
 import pytest
 
+from common.lifetime import OWNER_ENV
 from test_robustness import alive
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -28,14 +29,14 @@ time.sleep(300)
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the guard is Linux only")
 def test_guard_kills_an_unmarked_grandchild_started_after_its_parent_was_seen():
-    env = {k: v for k, v in os.environ.items() if k != "FISHEYE_BEV_OWNER"}
+    env = {k: v for k, v in os.environ.items() if k != OWNER_ENV}
     p = subprocess.Popen([sys.executable, "-c", COMMAND], cwd=ROOT, env=dict(env, PYTHONPATH=str(ROOT)),
                          stdout=subprocess.PIPE, text=True)
     grandchild = int(p.stdout.readline())
     deadline = time.monotonic() + 5
     while not Path(f"/proc/{grandchild}/cmdline").read_bytes().startswith(b"sleep") and time.monotonic() < deadline:
         time.sleep(0.01)  # until `env` has exec'd sleep: the forked shell still has the mark
-    assert b"FISHEYE_BEV_OWNER" not in Path(f"/proc/{grandchild}/environ").read_bytes()
+    assert OWNER_ENV.encode() not in Path(f"/proc/{grandchild}/environ").read_bytes()
     time.sleep(0.6)  # the guard walks the tree every 0.2 s
     p.kill()
     p.wait()
