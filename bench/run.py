@@ -18,7 +18,8 @@ from pathlib import Path
 
 from common.files import write_text_atomic
 
-MODULES = ["bench.geometry", "bench.scenes", "bench.topdown", "bench.fusion", "bench.model", "bench.report", "bench.ray_backend"]
+MODULES = ["bench.geometry", "bench.scenes", "bench.realism", "bench.topdown", "bench.fusion", "bench.model", "bench.report",
+           "bench.ray_backend"]
 OUT = Path("bench/out")
 
 
@@ -27,8 +28,8 @@ def main(argv=None) -> int:
     ap.add_argument("--only", nargs="*", help="module names (e.g. geometry model)")
     ap.add_argument("--out", type=Path, default=OUT)
     ap.add_argument("--baseline", default=None,
-                    help="commit whose training/inference figures the model part measures alongside, as ratios "
-                         "(default: bench.model.BASELINE; 'none' to skip)")
+                    help="commit the model and realism parts measure alongside, as ratios (default: each part's "
+                         "BASELINE; 'none' to skip)")
     args = ap.parse_args(argv)
     results, failed = {}, False
     for name in MODULES:
@@ -59,9 +60,12 @@ def main(argv=None) -> int:
 
 
 def _options(part: str, args) -> dict:
-    if part != "model":
+    if part == "realism":
+        from bench.realism import BASELINE
+    elif part == "model":
+        from bench.model import BASELINE
+    else:
         return {}
-    from bench.model import BASELINE
 
     baseline = BASELINE if args.baseline is None else args.baseline
     return {"baseline": None if baseline.lower() == "none" else baseline}

@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from .shapes import MeshData
+from .vehicles import BELT, KIND_STYLES, build_vehicle
 
 # kind -> (length, width, height) nominal, metres; wheel radius
 VEHICLE_SIZES = {
@@ -27,85 +28,13 @@ def vehicle_size(kind: str, rng: np.random.Generator, max_width: float) -> tuple
     return l * f[0], min(w * f[1], max_width), h * f[2]
 
 
-def _cabin(m: MeshData, x0, x1, z0, z1, w, rake_rear, rake_front, roof_mat="car_paint"):
-    """A glasshouse from the beltline (x0..x1, width w, height z0) to a narrower, shorter roof at
-    z1: raked windscreen and rear window, side windows leaning in (glass sides, painted roof)."""
-    wt = w * 0.84
-    v = [(x0, -w / 2, z0), (x1, -w / 2, z0), (x1, w / 2, z0), (x0, w / 2, z0),
-         (x0 + rake_rear, -wt / 2, z1), (x1 - rake_front, -wt / 2, z1), (x1 - rake_front, wt / 2, z1), (x0 + rake_rear, wt / 2, z1)]
-    m.add(v, [(0, 1, 5, 4), (1, 2, 6, 5), (2, 3, 7, 6), (3, 0, 4, 7)], "car_glass")
-    m.add(v, [(4, 5, 6, 7)], roof_mat)
-    # the roof skin over the glass edge and the pillars' colour read as one body
-    m.box(((x0 + rake_rear + x1 - rake_front) / 2, 0, z1 - 0.04), (x1 - rake_front - x0 - rake_rear + 0.02, wt + 0.02, 0.05), mat=roof_mat)
-
-
-# body style per kind: (cabin start, cabin end) as fractions of the length from the rear, beltline
-# as a fraction of the height, rear and front rake of the glasshouse (m)
-CAR_STYLES = {
-    "sedan": ((0.22, 0.70), 0.55, 0.45, 0.75),
-    "hatchback": ((0.05, 0.68), 0.55, 0.25, 0.75),
-    "wagon": ((0.04, 0.70), 0.55, 0.12, 0.75),
-    "suv": ((0.04, 0.72), 0.55, 0.15, 0.6),
-    "pickup": ((0.42, 0.72), 0.55, 0.05, 0.55),
-}
-KIND_STYLES = {"car": ("sedan", "hatchback", "wagon"), "suv": ("suv", "pickup")}
-
-
 def vehicle_mesh(kind: str, size, rng: np.random.Generator, style: str | None = None) -> MeshData:
-    """Body in 'car_paint' (colour from the object), glasshouse, bumpers and trim, wheels with rims,
-    head and tail lights; every part inside the (length, width, height) box. Cars are sedans,
-    hatchbacks or wagons, SUVs are SUVs or pickups (`style`, else drawn)."""
-    l, w, h = size
-    wr = VEHICLE_SIZES[kind][1]
-    m = MeshData()
-    clear = wr * 0.6  # ground clearance of the body
-    if kind in ("car", "suv"):
-        style = style or KIND_STYLES[kind][int(rng.integers(len(KIND_STYLES[kind])))]
-        (c0, c1), belt, rake_r, rake_f = CAR_STYLES[style]
-        low = h * belt
-        m.box((0, 0, clear), (l, w, low - clear), mat="car_paint")
-        # the hood slopes down to the nose: a wedge on the front third
-        m.box((l * 0.36, 0, low - 0.06), (l * 0.26, w * 0.96, 0.06), mat="car_paint")
-        _cabin(m, -l / 2 + c0 * l, -l / 2 + c1 * l, low, h, w * 0.97, rake_r, rake_f * rng.uniform(0.85, 1.1))
-        if style == "pickup":  # open bed walls behind the cab
-            bed0, bed1 = -l / 2 + 0.05, -l / 2 + c0 * l - 0.05
-            for side in (-1, 1):
-                m.box(((bed0 + bed1) / 2, side * (w / 2 - 0.05), low), (bed1 - bed0, 0.08, 0.22), mat="car_paint")
-            m.box((bed0 + 0.04, 0, low), (0.08, w - 0.1, 0.22), mat="car_paint")
-    elif kind == "van":
-        m.box((-0.25, 0, clear), (l - 0.5, w, h - clear - 0.02), mat="car_paint")
-        m.box((l / 2 - 0.5, 0, clear), (0.5, w, h * 0.5 - clear), mat="car_paint")  # the nose
-        _cabin(m, l / 2 - 1.2, l / 2 - 0.05, h * 0.5, h * 0.9, w * 0.98, 0.0, 0.55)
-        for side in (-1, 1):
-            m.box((0.3, side * (w / 2 + 0.005), h * 0.58), (l * 0.35, 0.01, h * 0.22), mat="car_glass")
-    elif kind == "truck":
-        cab = 2.2
-        m.box((l / 2 - cab / 2, 0, clear), (cab, w, h * 0.55), mat="car_paint")
-        m.box((l / 2 - cab / 2 + 0.1, 0, clear + h * 0.55), (cab - 0.2, w * 0.95, h * 0.25), mat="car_glass")
-        m.box((l / 2 - cab / 2 + 0.1, 0, clear + h * 0.8), (cab - 0.3, w * 0.95, 0.08), mat="car_paint")
-        m.box((-cab / 2 - 0.15, 0, clear + 0.2), (l - cab - 0.3, w, h - clear - 0.2), mat="cargo")
-        m.box((-cab / 2 - 0.15, 0, clear), (l - cab - 0.3, w * 0.9, 0.2), mat="trim")  # chassis
-    else:  # bus
-        m.box((0, 0, clear), (l, w, h * 0.45 - clear), mat="car_paint")
-        m.box((0, 0, h * 0.45), (l - 0.05, w - 0.04, h * 0.35), mat="car_glass")
-        m.box((0, 0, h * 0.8), (l, w, h * 0.2), mat="car_paint")
-        for k in range(1, int(l / 1.6)):  # window pillars
-            for side in (-1, 1):
-                m.box((-l / 2 + k * 1.6, side * (w / 2 - 0.015), h * 0.45), (0.12, 0.04, h * 0.35), mat="car_paint")
-    # bumpers, lamps on the front and rear faces
-    for end in (-1, 1):
-        m.box((end * (l / 2 - 0.06), 0, clear - 0.05), (0.14, w * 0.98, 0.22), mat="trim")
-        for side in (-1, 1):
-            lamp = "headlight" if end > 0 else "taillight"
-            m.box((end * (l / 2 - 0.01), side * (w / 2 - 0.25), clear + 0.3), (0.04, 0.3, 0.13), mat=lamp)
-    axles = [l / 2 - max(0.8, l * 0.17), -l / 2 + max(0.8, l * 0.2)]
-    if kind in ("truck", "bus"):
-        axles.append(-l / 2 + max(0.8, l * 0.2) + 1.3)
-    for ax in axles:
-        for side in (-1, 1):
-            m.cylinder((ax, side * (w / 2 - 0.12), wr), wr, 0.24, n=14, mat="tyre", axis="y")
-            m.cylinder((ax, side * (w / 2 - 0.005), wr), wr * 0.6, 0.01, n=10, mat="rim", axis="y")
-    return m
+    """A vehicle of `kind` filling its (length, width, height) box (blender_scripts/vehicles.py): cars
+    are sedans, hatchbacks or wagons, SUVs are SUVs or pickups (`style`, else drawn)."""
+    styles = KIND_STYLES[kind]
+    if style is None:
+        style = styles[int(rng.integers(len(styles)))] if len(styles) > 1 else styles[0]
+    return build_vehicle(kind, size, VEHICLE_SIZES[kind][1], style)
 
 
 TREE_SHAPES = ("round", "conifer", "clustered", "tall")
@@ -126,9 +55,9 @@ def tree_meshes(rng: np.random.Generator, overhang: bool, shape: str | None = No
         trunk_h *= 0.4
         for k in range(3):
             rk = r * (0.9 - 0.25 * k)
-            canopy.ellipsoid((0, 0, trunk_h + k * r * 0.7 + rk * 0.6), (rk, rk, rk * 0.75), mat="leaves", nu=8, nv=5)
+            canopy.ellipsoid((0, 0, trunk_h + k * r * 0.7 + rk * 0.6), (rk, rk, rk * 0.75), mat="leaves", nu=14, nv=8)
     elif shape == "tall":
-        canopy.ellipsoid((0, 0, trunk_h + r * 1.2), (r * 0.55, r * 0.55, r * 1.6), mat="leaves", nu=8, nv=6)
+        canopy.ellipsoid((0, 0, trunk_h + r * 1.2), (r * 0.55, r * 0.55, r * 1.6), mat="leaves", nu=14, nv=10)
     elif shape == "clustered":
         zc = trunk_h + r * 0.55
         for k in range(int(rng.integers(3, 5))):
@@ -136,13 +65,46 @@ def tree_meshes(rng: np.random.Generator, overhang: bool, shape: str | None = No
             d = r * rng.uniform(0.2, 0.5)
             rk = r * rng.uniform(0.55, 0.75)
             canopy.ellipsoid((d * np.cos(a), lean + d * np.sin(a), zc + rng.uniform(-0.3, 0.4) * r),
-                             (rk, rk, rk * 0.75), mat="leaves", nu=8, nv=5)
+                             (rk, rk, rk * 0.75), mat="leaves", nu=14, nv=8)
     else:
         zc = trunk_h + r * 0.55
-        canopy.ellipsoid((0, lean, zc), (r, r, r * rng.uniform(0.55, 0.8)), mat="leaves", nu=10, nv=6)
+        canopy.ellipsoid((0, lean, zc), (r, r, r * rng.uniform(0.55, 0.8)), mat="leaves", nu=18, nv=10)
     top = trunk_h + r * (0.5 if shape in ("round", "clustered") else 0.3)
-    trunk = MeshData().cylinder((0, 0, 0), rng.uniform(0.15, 0.3), top, n=8, mat="bark")
+    trunk_r = rng.uniform(0.15, 0.3)
+    trunk = MeshData().cylinder((0, 0, 0), trunk_r, top, n=8, mat="bark")
+    # the details below come from their own stream (seeded by the draws above), so the layout's
+    # generator advances exactly as it did before trees had them
+    detail = np.random.default_rng([int(1e6 * trunk_h), int(1e6 * r), int(1e6 * trunk_r)])
+    _lumpy(canopy, detail, r)
+    if shape != "conifer":
+        _branches(trunk, detail, trunk_h, top, trunk_r, r, lean)
+    trunk.smooth_angle = canopy.smooth_angle = 60.0
     return trunk, canopy
+
+
+def _lumpy(canopy: MeshData, rng: np.random.Generator, r: float) -> None:
+    """Leaf clusters: every vertex of the crown pushed in or out by a few random waves over its
+    direction, so the crown breaks into lobes instead of a smooth ellipsoid."""
+    for k, v in enumerate(canopy.verts):
+        c = v.mean(axis=0)
+        d = v - c
+        n = d / np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-9)
+        f = np.ones(len(v))
+        for _ in range(4):
+            axis = rng.normal(size=3)
+            f += 0.12 * np.sin(rng.uniform(3, 7) * n @ (axis / np.linalg.norm(axis)) + rng.uniform(0, 2 * np.pi))
+        f += rng.uniform(-0.06, 0.06, len(v))
+        canopy.verts[k] = c + d * f[:, None]
+
+
+def _branches(trunk: MeshData, rng: np.random.Generator, trunk_h, top, trunk_r, r, lean) -> None:
+    """A few limbs from the upper trunk up and out into the crown."""
+    for k in range(int(rng.integers(3, 6))):
+        a = 2 * np.pi * k / 5 + rng.uniform(-0.4, 0.4)
+        z0 = trunk_h * rng.uniform(0.7, 0.95)
+        reach = r * rng.uniform(0.4, 0.7)
+        end = (reach * np.cos(a), lean * 0.5 + reach * np.sin(a), min(top, z0 + reach * 0.9))
+        trunk.tube((0.0, 0.0, z0), end, trunk_r * 0.35, trunk_r * 0.15, n=6, mat="bark")
 
 
 def building_mesh(rng: np.random.Generator, length, depth, height) -> MeshData:
@@ -225,11 +187,12 @@ def ego_body(camera_positions, rng: np.random.Generator):
     style = "hatchback" if kind == "car" else "suv"
     body = vehicle_mesh(kind, size, rng, style)
     v = body.vertices
-    low = size[2] * CAR_STYLES[style][1]  # the beltline: the glasshouse and roof sit above it
+    low = size[2] * BELT[style]  # the beltline: the glasshouse and roof sit above it
     faces_z = np.array([v[list(f)][:, 2].min() for f in body.faces])
     cab = faces_z >= low - 1e-6
     inside = [(x0 < x < x1 and abs(y) < half_w and low - 0.05 < z < size[2] + 0.05) for x, y, z in p]
     out = MeshData()
+    out.smooth_angle = body.smooth_angle
     for f, mat, up in zip(body.faces, body.mats, cab):
         if up and any(inside):
             continue

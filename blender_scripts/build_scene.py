@@ -18,6 +18,7 @@ from . import assets, lighting
 from .camera import add_rig_camera, add_topdown_camera
 from .layouts import Layout, build_layout
 from .materials import MATERIAL_CLASSES, build_materials
+from .people import place_people
 from .shapes import MeshData
 from .traffic import ego_pose, place_traffic, vehicle_pose
 
@@ -59,6 +60,9 @@ def _mesh_object(name, data: MeshData, mats, instance: int, location=(0, 0, 0), 
         mesh.materials.append(mats[n])
     index = {n: i for i, n in enumerate(names)}
     mesh.polygons.foreach_set("material_index", [index[n] for n in data.mats])
+    if data.smooth_angle is not None:
+        mesh.shade_smooth()
+        mesh.set_sharp_from_angle(angle=math.radians(data.smooth_angle))
     mesh.update()
     obj = bpy.data.objects.new(name, mesh)
     obj.location = location
@@ -93,15 +97,20 @@ def build_scene(recipe: dict, rig, grid, topdown_height: float = 60.0, osl_workd
     rng = scene_rng(recipe["traffic"]["seed"], 3)
     for k, v in enumerate(place_traffic(layout, recipe, rng)):
         obj, cls, _ = _mesh_object(f"vehicle{k}_{v.kind}", assets.vehicle_mesh(v.kind, v.size, rng), mats, next_id)
-        obj.color = (*v.color, 1.0)
+        obj.color = v.color  # RGB and, as alpha, whether the paint is metallic
+        obj["lights"] = 0.0 if v.parked_pose is not None else 1.0  # parked cars have their lamps off
         objects[next_id] = {"name": obj.name, "class": "vehicle"}
         vehicles.append((v, obj))
+        next_id += 1
+    for k, (mesh, loc, yaw) in enumerate(place_people(layout, scene_rng(seed, 8))):
+        obj, _, _ = _mesh_object(f"person{k}", mesh, mats, next_id, loc, yaw)
+        objects[next_id] = {"name": obj.name, "class": "pedestrian"}
         next_id += 1
     if weather["lights_on"]:
         # spot lights for the vehicles nearest the ego's start; farther ones keep glowing lamps
         ex, ey, _ = ego_pose(layout, recipe, 0.0)
         near = sorted(vehicles, key=lambda vo: math.dist(vehicle_pose(layout, vo[0], 0.0)[:2], (ex, ey)))
-        for v, obj in near[:MAX_HEADLIGHT_CARS]:
+        for v, obj in [vo for vo in near if vo[0].parked_pose is None][:MAX_HEADLIGHT_CARS]:
             lighting.add_headlights(scene, obj, v.size[0], v.size[1])
     lighting.setup_world(scene, weather)
     if weather["lights_on"]:
@@ -120,12 +129,15 @@ def build_scene(recipe: dict, rig, grid, topdown_height: float = 60.0, osl_workd
     if ego_body:
         mesh, box, kind, colour = assets.ego_body([np.asarray(rc.cam_to_ego)[:3, 3] for rc in rig], scene_rng(seed, 5))
         obj, _, _ = _mesh_object("ego_body", mesh, mats, next_id)
-        obj.color = (*colour, 1.0)
+        obj.color = (*colour, 1.0)  # (metallic)
+        obj["lights"] = 1.0
         obj.parent = ego
         objects[next_id] = {"name": obj.name, "class": "ego"}
         body.append(obj)
         ego_meta = {"box": box, "kind": kind, "instance": next_id}
         next_id += 1
+        if weather["lights_on"]:  # the ego drives with its headlights on
+            lighting.add_headlights(scene, ego, box[1] - box[0], box[3] - box[2], front_x=box[1])
     return BuiltScene(recipe, weather, layout, vehicles, objects, occluders, ego, cams, topdown, fit_errors,
                       body, ego_meta)
 

@@ -45,6 +45,7 @@ class Layout:
     ego_lane: int = 0
     lamps: list[tuple] = field(default_factory=list)  # world positions of street-light bulbs
     parked: list[tuple] = field(default_factory=list)  # (x, y, yaw, max_length) parking bays in use
+    walks: list[tuple] = field(default_factory=list)  # (Path, offset a, offset b): pavements people walk on
 
     def add(self, name, mesh, location=(0.0, 0.0, 0.0), yaw=0.0, color=None):
         if len(mesh):
@@ -163,6 +164,7 @@ def _sidewalk(layout, name, path, s0, s1, inner, width, side):
     walk.ribbon(sub, max(a, b), min(a, b), Z_KERB, "pavement", depth=Z_KERB)
     layout.add(name + "_kerb", kerb)
     layout.add(name + "_walk", walk)
+    layout.walks.append((sub, a, b))
 
 
 def _speeds(rng, n, speed_range, ego_speed, ego_lane):

@@ -22,7 +22,7 @@ PRESETS = {
                  fog_density=0.004, wetness=0.9, lights_on=False),
     "fog": dict(sun_elevation_deg=30.0, sun_strength=0.6, sky_strength=0.4, overcast=0.7,
                 fog_density=0.03, wetness=0.2, lights_on=False),
-    "night": dict(sun_elevation_deg=-12.0, sun_strength=0.02, sky_strength=0.02, overcast=0.0,
+    "night": dict(sun_elevation_deg=-12.0, sun_strength=0.02, sky_strength=0.005, overcast=0.0,
                   fog_density=0.0, wetness=0.0, lights_on=True),
 }
 
@@ -40,6 +40,13 @@ def sun_direction(elevation_deg: float, azimuth_deg: float) -> Vector:
     """Unit vector toward the sun, as Cycles' Nishita sky places it (rotation measured from +y)."""
     el, rot = math.radians(elevation_deg), math.radians(azimuth_deg)
     return Vector((-math.cos(el) * math.sin(rot), math.cos(el) * math.cos(rot), math.sin(el)))
+
+
+def fog_color(w: dict) -> tuple:
+    """The haze's colour: light grey by day, as dark as the sky and sun leave it at dusk and night
+    (a night haze lit like a day's would paint the sky grey)."""
+    ambient = min(1.0, (w["sky_strength"] + 0.1 * max(w["sun_strength"], 0.0)) / 0.3)
+    return tuple(c * ambient for c in (0.55, 0.57, 0.6))
 
 
 def setup_world(scene, w: dict) -> None:
@@ -71,7 +78,7 @@ def setup_world(scene, w: dict) -> None:
     # label renders turn the lights off and on every frame).
     world.cycles.sampling_method = "MANUAL"
     world.cycles.sample_map_resolution = 256
-    setup_fog(scene, w["fog_density"], w.get("fog_color", (0.55, 0.57, 0.6)))
+    setup_fog(scene, w["fog_density"], w.get("fog_color", fog_color(w)))
 
     if w["sun_elevation_deg"] <= 0:
         return  # a sun below the horizon lights nothing; as a lamp it would only cost shadow rays
@@ -86,7 +93,7 @@ def setup_world(scene, w: dict) -> None:
     scene.collection.objects.link(obj)
 
 
-def add_street_lamps(scene, lamps, power: float = 3000.0, limit: int = 40) -> None:
+def add_street_lamps(scene, lamps, power: float = 4500.0, limit: int = 40) -> None:
     """Point lights at street-light bulbs (night); the nearest `limit` to the origin."""
     lamps = sorted(lamps, key=lambda p: p[0] ** 2 + p[1] ** 2)[:limit]
     for i, p in enumerate(lamps):
@@ -99,8 +106,9 @@ def add_street_lamps(scene, lamps, power: float = 3000.0, limit: int = 40) -> No
         scene.collection.objects.link(obj)
 
 
-def add_headlights(scene, vehicle_obj, length: float, width: float, power: float = 400.0):
-    """Two spot lights on a vehicle's front, parented to it (night)."""
+def add_headlights(scene, vehicle_obj, length: float, width: float, power: float = 400.0, front_x: float | None = None):
+    """Two spot lights on a vehicle's front (at x = front_x, default length / 2 from its origin),
+    parented to it (night)."""
     for side in (-1, 1):
         light = bpy.data.lights.new(f"{vehicle_obj.name}_hl{side:+d}", "SPOT")
         light.energy = power
@@ -108,7 +116,7 @@ def add_headlights(scene, vehicle_obj, length: float, width: float, power: float
         light.spot_blend = 0.5
         obj = bpy.data.objects.new(light.name, light)
         obj.parent = vehicle_obj
-        obj.location = (length / 2 + 0.05, side * (width / 2 - 0.3), 0.6)
+        obj.location = ((length / 2 if front_x is None else front_x) + 0.05, side * (width / 2 - 0.3), 0.6)
         # spot points along its local -z: turn it to look forward and slightly down
         obj.rotation_euler = (0.0, math.radians(-85), 0.0)
         scene.collection.objects.link(obj)

@@ -23,6 +23,7 @@ from dataset_tools.format.exr import read_exr, write_exr
 from dataset_tools.format.layout import FrameFiles
 from dataset_tools.labels.classes import CLASS_IDS
 from dataset_tools.format.png import read_png, write_png_atomic
+from dataset_tools.generation import sensor
 from dataset_tools.labels.coverage import reduce_supersampled
 
 from .camera import use_camera
@@ -61,6 +62,7 @@ def configure_render(scene, samples: int, denoise: bool, threads: int, max_bounc
     vl.use_pass_object_index = True
     vl.use_pass_material_index = True
     vl.use_pass_position = True
+    vl.pass_alpha_threshold = 0.0  # label passes stop at the first surface, see-through glass included
     scene.update_tag()
 
 
@@ -101,9 +103,9 @@ def label_mode(scene):
 
 
 def _render_to_exr(scene, camera, width, height, tmpdir: Path, tag: str, png: Path | None = None,
-                   clock: dict | None = None):
+                   clock: dict | None = None, post=None):
     """Render through `camera` and return Blender's passes as a dict (rows top-down); time spent
-    saving the PNG goes to clock["write"]."""
+    saving the PNG (after `post`, the camera's effects, on its pixels) goes to clock["write"]."""
     use_camera(scene, camera)
     if (scene.render.resolution_x, scene.render.resolution_y) != (width, height):
         raise RuntimeError(f"camera '{camera.name}' renders {scene.render.resolution_x}x"
@@ -123,7 +125,8 @@ def _render_to_exr(scene, camera, width, height, tmpdir: Path, tag: str, png: Pa
         # Blender writes date and render-time text chunks: re-encode so equal pixels give equal bytes
         tmp = tmpdir / f"{tag}.png"
         bpy.data.images["Render Result"].save_render(str(tmp), scene=scene)
-        write_png_atomic(png, read_png(tmp, np.uint8, 3))
+        img = read_png(tmp, np.uint8, 3)
+        write_png_atomic(png, post(img) if post else img)
         tmp.unlink()
         if clock is not None:
             clock["write"] = clock.get("write", 0.0) + time.perf_counter() - t0
@@ -137,9 +140,9 @@ def _render_to_exr(scene, camera, width, height, tmpdir: Path, tag: str, png: Pa
 
 
 def render_fisheye(scene, camera, width, height, out_dir: Path, name: str, tmpdir: Path, clock: dict,
-                   ego_mask: bool = False) -> None:
+                   ego_mask: bool = False, post=None) -> None:
     files = FrameFiles(out_dir)
-    p = _render_to_exr(scene, camera, width, height, tmpdir, f"cam_{name}", files.camera_png(name), clock)
+    p = _render_to_exr(scene, camera, width, height, tmpdir, f"cam_{name}", files.camera_png(name), clock, post)
     t0 = time.perf_counter()
     semantic = np.rint(p["IndexMA.X"]).astype(np.uint32)
     extra = {}
@@ -206,16 +209,21 @@ def render_topdown(scene, camera, size: int, occluders, world_to_ego: np.ndarray
 
 def render_frame(built, frame_dir: Path, fisheye_sizes: dict, topdown_size: int, render_cfg: dict,
                  cycles_seed: int, tmpdir: Path, frame_meta: dict, supersample: int = 1,
-                 marking_share: float = 0.25) -> dict:
-    """Render every pass of the posed frame into frame_dir; returns timings (s)."""
+                 marking_share: float = 0.25, sensor_geometry: dict | None = None) -> tuple[dict, dict]:
+    """Render every pass of the posed frame into frame_dir; -> (timings (s), the camera effects drawn
+    per camera). sensor_geometry: camera name -> (ray angles, principal point), sensor.camera_geometry."""
     scene = bpy.context.scene
     frame_dir.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     set_cycles(scene, seed=cycles_seed, samples=render_cfg["samples"], use_denoising=render_cfg["denoise"])
     clock: dict = {}
-    for name, cam in built.cameras.items():
+    effects = {}
+    for k, (name, cam) in enumerate(built.cameras.items()):
         w, h = fisheye_sizes[name]
-        render_fisheye(scene, cam, w, h, frame_dir, name, tmpdir, clock, bool(built.ego_body))
+        effects[name] = sensor.draw(render_cfg["sensor"], np.random.default_rng([cycles_seed, 7, k]))
+        theta, principal = (sensor_geometry or {}).get(name, (None, None))
+        post = (lambda img, p=effects[name], t=theta, c=principal: sensor.apply(img, p, t, c)) if effects[name] else None
+        render_fisheye(scene, cam, w, h, frame_dir, name, tmpdir, clock, bool(built.ego_body), post)
     t1 = time.perf_counter()
     with label_mode(scene):
         td = render_topdown(scene, built.topdown, topdown_size, built.occluders, frame_meta["world_to_ego"], tmpdir,
@@ -224,4 +232,4 @@ def render_frame(built, frame_dir: Path, fisheye_sizes: dict, topdown_size: int,
     write_exr(FrameFiles(frame_dir).topdown, td)
     t3 = time.perf_counter()
     w = clock.get("write", 0.0)
-    return {"fisheye_s": t1 - t0 - w, "topdown_s": t2 - t1, "write_s": t3 - t2 + w}
+    return {"fisheye_s": t1 - t0 - w, "topdown_s": t2 - t1, "write_s": t3 - t2 + w}, effects

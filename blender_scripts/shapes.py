@@ -76,7 +76,10 @@ def curved_path(length: float, curvature: float, step: float = 2.0) -> Path:
 
 
 class MeshData:
-    """Vertices, faces and one material name per face; primitives append to it."""
+    """Vertices, faces and one material name per face; primitives append to it. `smooth_angle`
+    (degrees): shade smooth except across edges sharper than it (None: flat, the default)."""
+
+    smooth_angle: float | None = None
 
     def __init__(self):
         self.verts: list[np.ndarray] = []
@@ -129,6 +132,24 @@ class MeshData:
         v = np.column_stack([c * v[:, 0] - s * v[:, 1], s * v[:, 0] + c * v[:, 1], v[:, 2]]) + center
         faces = [(i, (i + 1) % n, n + (i + 1) % n, n + i) for i in range(n)]
         faces += [tuple(range(n - 1, -1, -1)), tuple(range(n, 2 * n))]
+        return self.add(v, faces, mat)
+
+    def tube(self, p0, p1, r0, r1=None, n=6, mat="default", caps=True):
+        """A (tapered) cylinder from point p0 (radius r0) to p1 (radius r1, default r0)."""
+        p0, p1 = np.asarray(p0, float), np.asarray(p1, float)
+        axis = p1 - p0
+        length = float(np.linalg.norm(axis))
+        z = axis / max(length, 1e-12)
+        x = np.cross([0.0, 0.0, 1.0], z) if abs(z[2]) < 0.999 else np.array([1.0, 0.0, 0.0])
+        x /= np.linalg.norm(x)
+        y = np.cross(z, x)
+        a = np.linspace(0, 2 * math.pi, n, endpoint=False)
+        ring = np.cos(a)[:, None] * x + np.sin(a)[:, None] * y
+        r1 = r0 if r1 is None else r1
+        v = np.vstack([p0 + r0 * ring, p1 + r1 * ring])
+        faces = [(i, (i + 1) % n, n + (i + 1) % n, n + i) for i in range(n)]
+        if caps:
+            faces += [tuple(range(n - 1, -1, -1)), tuple(range(n, 2 * n))]
         return self.add(v, faces, mat)
 
     def ellipsoid(self, center, radii, mat="default", nu=10, nv=6):

@@ -62,7 +62,10 @@ def run_task(task: RenderTask, state: dict) -> None:
                             render["ego_body"])
         configure_render(bpy.context.scene, render["samples"], render["denoise"], task.threads,
                          render["max_bounces"], render["denoise_quality"])
-        state.update(key=key, built=built, rig=rig, nominal=nominal, grid=grid)
+        from dataset_tools.generation.sensor import camera_geometry
+
+        geometry = {rc.name: camera_geometry(rc.camera) for rc in rig} if any(render["sensor"].values()) else {}
+        state.update(key=key, built=built, rig=rig, nominal=nominal, grid=grid, sensor_geometry=geometry)
         t_build = time.perf_counter() - t0
     built, rig = state["built"], state["rig"]
     sizes = {rc.name: (rc.camera.width, rc.camera.height) for rc in rig}
@@ -71,8 +74,8 @@ def run_task(task: RenderTask, state: dict) -> None:
         frame_dir = Path(task.out) / frame_dir_name(task.scene, frame)
         fm = set_frame(built, frame)
         seed = frame_seed(recipe["seed"], frame)
-        timings = render_frame(built, frame_dir, sizes, td["size"], render, seed, Path(state["tmp"]), fm,
-                               td["supersample"], td["marking_share"])
+        timings, effects = render_frame(built, frame_dir, sizes, td["size"], render, seed, Path(state["tmp"]), fm,
+                                        td["supersample"], td["marking_share"], state["sensor_geometry"])
         w = built.weather
         meta = {
             "scene": task.scene, "frame": frame, "split": task.split, "family": recipe["family"],
@@ -92,6 +95,7 @@ def run_task(task: RenderTask, state: dict) -> None:
             "topdown": {"grid": state["grid"].to_dict(), "height_m": td["height_m"],
                         "supersample": td["supersample"], "marking_share": td["marking_share"]},
             "render": render,
+            "sensor": effects,
             "recipe": recipe,
         }
         # frame_s: this frame's posing, renders and writes (meta.json's own write, ~1 ms, excluded)

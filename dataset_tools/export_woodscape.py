@@ -49,7 +49,8 @@ WOODSCAPE_RGB = [(0, 0, 0), (255, 0, 255), (0, 0, 255), (0, 255, 0), (255, 0, 0)
 # structure/pole/fence/green_strip/ego_vehicle; person, rider, bicycle, motorcycle and traffic_sign
 # have no counterpart in our scenes.
 FINE_TO_WOODSCAPE = {"road": "road", "parking": "road", "lane_marking": "lanemarks", "crosswalk": "lanemarks",
-                     "stop_line": "lanemarks", "curb": "curb", "vehicle": "vehicles"}
+                     "stop_line": "lanemarks", "curb": "curb", "vehicle": "vehicles",
+                     "pedestrian": "person"}
 BOX_CLASS = ("vehicles", 0)  # scripts/configs/box_2d_mapping_5_classes.json
 INSTANCE_TAG = "car"  # scripts/mappers/class_names.json: car -> vehicles
 

@@ -78,6 +78,7 @@ def test_ego_body_in_every_camera_never_in_labels_or_counts(sampled):
         assert np.array_equal(read_png(files.camera_ego_mask(name), np.uint8, 1) > 0, ego)
     td = read_exr(files.topdown)
     assert not (td["all.semantic"] == EGO).any() and not (td["ground.semantic"] == EGO).any()
+
     # labels: the ego class maps to invalid; its footprint is invalid; its pixels are never counted
     cfg = fusion.FusionConfig()
     assert DEFAULT_CLASS_MAP["ego"] == "invalid" and cfg.group_lut()[EGO] == 0
@@ -133,3 +134,16 @@ def test_jittered_rig_round_trips_through_meta_index_reader_and_lift(sampled):
         own = model(sample["images"][None], sample["point_cell"][None], sample["intrinsics"][None])["semantic"]
         nom = model(sample["images"][None])["semantic"]
     assert own.shape == nom.shape and not torch.allclose(own, nom)
+
+
+def test_photo_quality_draws_the_camera_effects_per_camera(sampled):
+    from dataset_tools.generation.sensor import EFFECTS
+
+    meta = json.loads(FrameFiles(sampled / "s5_0000" / "000000").meta.read_text())
+    assert meta["render"]["quality"] == "photo"
+    assert set(meta["sensor"]) == {"front", "left", "rear", "right"}
+    on = {e for e in EFFECTS if meta["render"]["sensor"][e]}
+    assert "noise" in on and "jpeg" not in on
+    for params in meta["sensor"].values():
+        assert "vignetting" in params and "shot_gain" in params and "jpeg_quality" not in params
+    assert meta["sensor"]["front"] != meta["sensor"]["rear"]

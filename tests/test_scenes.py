@@ -213,8 +213,25 @@ def test_instance_ids_unique_and_consistent(scene_tiny_run):
                     continue
                 cls = meta["instances"][str(inst)]["class"]
                 sem = np.unique(ch["semantic"][ch["instance"] == inst])
-                if cls == "vehicle":  # every pixel of a vehicle instance is labelled vehicle
-                    assert sem.tolist() == [CLASS_IDS["vehicle"]], (key, inst)
+                if cls in ("vehicle", "pedestrian"):  # every pixel of a vehicle (person) is labelled so
+                    assert sem.tolist() == [CLASS_IDS[cls]], (key, inst)
+
+
+def test_people_stand_on_the_pavements_of_urban_scenes(scene_tiny_run):
+    from blender_scripts.layouts import Z_KERB
+
+    for key, d in _frames(scene_tiny_run).items():
+        meta = json.loads((d / "meta.json").read_text())
+        people = [int(k) for k, v in meta["instances"].items() if v["class"] == "pedestrian"]
+        if meta["family"] == "urban_block":
+            assert len(people) >= 5, key
+        if meta["family"] in ("highway", "roundabout", "parking_lot"):  # no pavements there
+            assert not people, key
+        td = read_exr(d / "topdown.exr")
+        seen = np.isin(td["ground.instance"], people) & (td["ground.semantic"] == CLASS_IDS["pedestrian"])
+        if seen.any():  # a person from above is about 0.2-0.5 m wide, a head at 1.5-1.95 m
+            h = td["ground.height"][seen]
+            assert h.max() > Z_KERB + 1.0 and h.max() < Z_KERB + 2.0, key
 
 
 def test_road_under_ego_and_vehicles_where_meta_says(scene_tiny_run, scene_rig):

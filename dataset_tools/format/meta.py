@@ -50,6 +50,7 @@ class FrameMeta:
     fit_errors_px: dict | None = _opt(dict)
     topdown: dict = _req(dict)  # grid (BevGrid.to_dict), height_m, supersample, marking_share
     render: dict | None = _opt(dict)
+    sensor: dict | None = _opt(dict)  # per camera: the camera effects drawn for this frame (generation.sensor)
     recipe: dict | None = _opt(dict)
     timings: dict | None = _opt(dict)
     path: Path | None = field(default=None, compare=False, repr=False, metadata={"kind": None})  # where it was read

@@ -24,14 +24,23 @@ from pathlib import Path
 
 from common.errors import ConfigError
 from common.files import read_yaml
-from common.schema import Any, Bool, List, Name, Num, Section, Str
+from common.schema import Any, Bool, List, Name, Num, Section, Str, deep_merge
 
 from ..format.layout import LABEL_DIR, RECIPES_DIR, REPORT_DIR, SPLITS
 from .recipe import FAMILIES, WEATHER_PRESETS, load_recipe
 from .sampler import SAMPLE, relit_recipes, sample_recipes
+from .sensor import EFFECTS, OFF as SENSOR_OFF, SENSOR
 
 REPO = Path(__file__).resolve().parents[2]
 DENOISE_QUALITIES = ("high", "balanced", "fast")  # OpenImageDenoise's, as Cycles names them
+
+# render quality presets: the defaults of the render section. draft: fast and clean (tests, the
+# demo); photo: denoised path tracing and the camera's effects (data sets people train on)
+QUALITY = {
+    "draft": {"samples": 1, "denoise": False, "max_bounces": 1, "sensor": SENSOR_OFF},
+    "photo": {"samples": 2, "denoise": True, "max_bounces": 3,
+              "sensor": {e: e != "jpeg" for e in EFFECTS}},
+}
 
 SCENE = Section({
     "recipe": Str(),
@@ -54,6 +63,8 @@ SCHEMA = Section({
         "marking_share": Num(above=0, hi=1.0, default=0.25),
     }),
     "render": Section({
+        # what the other render fields default to (QUALITY); fields given explicitly win
+        "quality": Str(choices=tuple(QUALITY), default="photo"),
         "samples": Num(1, 65536, integer=True, default=4),
         "denoise": Bool(default=True),
         "denoise_quality": Str(choices=DENOISE_QUALITIES, default="balanced"),
@@ -61,6 +72,8 @@ SCHEMA = Section({
         "camera_method": Str(choices=("osl", "polynomial"), default="osl"),
         # the ego car's body around the rig (class `ego`, a self-occlusion mask per camera)
         "ego_body": Bool(default=True),
+        # the camera's own effects on the image (generation.sensor), each switched on or off
+        "sensor": SENSOR,
     }),
     "frames": Num(1, 10000, integer=True, default=None, nullable=True),  # overrides every recipe's frames.count
     "scenes": List(Any(), max_length=100_000),
@@ -71,6 +84,15 @@ SCHEMA = Section({
     }),
 })
 SAMPLED = Section({"sample": SAMPLE, "split": Str(choices=SPLITS, default="train")})
+
+
+def with_quality(d, where: str):
+    """The config with its render section's quality preset filled in under the fields it gives."""
+    if not isinstance(d, dict) or not isinstance(d.get("render", {}), dict):
+        return d  # the schema says what is wrong
+    render = d.get("render", {})
+    quality = SCHEMA.fields["render"].fields["quality"].validate(render.get("quality", "photo"), f"{where}: render.quality")
+    return {**d, "render": deep_merge(QUALITY[quality], render)}
 
 
 def resolve(path, base: Path) -> Path:
@@ -89,7 +111,7 @@ def load_config(path, option: str = "--config") -> dict:
         raise ConfigError(f"{option}: {path}: is a folder, not a file")
     if not path.exists():
         raise ConfigError(f"{option}: {path}: missing")
-    d = read_yaml(path)
+    d = with_quality(read_yaml(path), str(path))
     cfg = SCHEMA.validate(d, str(path))
     cfg["name"] = cfg["name"] or SCHEMA.fields["name"].validate(path.stem, f"{path}: name")
     cfg["rig"] = str(resolve(cfg["rig"], path.parent))

@@ -31,6 +31,7 @@ FINE_CLASSES = [
     (15, "terrain", False, (152, 251, 152)),  # grass, verge
     (16, "barrier", False, (102, 102, 156)),  # guard rails, median walls
     (17, "ego", False, (255, 0, 255)),  # the ego car's own body (camera self-occlusion); never a label
+    (18, "pedestrian", False, (220, 20, 60)),  # people on the pavements
 ]
 
 CLASS_IDS = {name: cid for cid, name, _, _ in FINE_CLASSES}
@@ -61,6 +62,7 @@ DEFAULT_CLASS_MAP = {
     "terrain": "background",
     "barrier": "background",
     "ego": "invalid",
+    "pedestrian": "background",  # the paper's classes have no people: not drivable, not a vehicle
 }
 
 

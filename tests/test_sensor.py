@@ -1,0 +1,119 @@
+"""The camera's effects on the image (dataset_tools.generation.sensor) and the render quality presets:
+seeded, switchable one by one, each doing what it says on a known image; presets fill in defaults
+that explicit fields override; a bad preset name is one line."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import yaml
+
+from common.errors import ConfigError
+from dataset_tools.generation import sensor
+from dataset_tools.generation.config import QUALITY, load_config
+from geometry.rig import load_rig
+
+ALL = {e: True for e in sensor.EFFECTS}
+
+
+@pytest.fixture(scope="module")
+def front():
+    cam = load_rig("configs/rigs/default.yaml")["front"].camera.resized(96, 60)
+    return cam, *sensor.camera_geometry(cam)
+
+
+def test_draws_are_seeded_and_switching_one_off_keeps_the_others():
+    a = sensor.draw(ALL, np.random.default_rng([5, 7, 0]))
+    assert a == sensor.draw(ALL, np.random.default_rng([5, 7, 0]))
+    assert a != sensor.draw(ALL, np.random.default_rng([6, 7, 0]))
+    b = sensor.draw(dict(ALL, vignetting=False), np.random.default_rng([5, 7, 0]))
+    assert "vignetting" not in b and all(b[k] == a[k] for k in b)
+    assert sensor.draw(sensor.OFF, np.random.default_rng(0)) == {}
+
+
+def test_nothing_switched_on_leaves_the_image_alone(front):
+    _, theta, pp = front
+    img = np.random.default_rng(0).integers(0, 256, theta.shape + (3,), dtype=np.uint8)
+    assert sensor.apply(img, {}, theta, pp) is img
+
+
+def test_geometry_comes_from_the_camera_model(front):
+    cam, theta, (u, v) = front
+    assert abs(u - (cam.width - 1) / 2) < 0.1 * cam.width and abs(v - (cam.height - 1) / 2) < 0.1 * cam.height
+    r = np.hypot(*np.meshgrid(np.arange(cam.width) - u, np.arange(cam.height) - v))
+    ok = np.isfinite(theta)
+    assert np.corrcoef(r[ok], theta[ok])[0, 1] > 0.99  # the ray angle grows with the radius
+
+
+def test_vignetting_darkens_the_edge_not_the_centre(front):
+    _, theta, pp = front
+    img = np.full(theta.shape + (3,), 128, np.uint8)
+    out = sensor.apply(img, {"vignetting": 0.4}, theta, pp).astype(int)
+    cy, cx = int(round(pp[1])), int(round(pp[0]))
+    assert abs(out[cy, cx, 1] - 128) <= 1
+    assert out[0, 0, 1] < 110 and out[-1, -1, 1] < 110
+
+
+def test_chromatic_aberration_moves_red_and_blue_never_green(front):
+    _, theta, pp = front
+    img = np.zeros(theta.shape + (3,), np.uint8)
+    img[:, 80:] = 200  # a vertical edge right of the centre
+    out = sensor.apply(img, {"chromatic_aberration": 0.02}, theta, pp)
+    assert np.array_equal(out[..., 1], img[..., 1])
+    assert not np.array_equal(out[..., 0], img[..., 0]) and not np.array_equal(out[..., 2], img[..., 2])
+    # red scaled outward: the red edge lies right of the green one, blue left of it
+    row = out[30].astype(int)
+    assert row[79:82, 0].sum() < row[79:82, 1].sum() < row[79:82, 2].sum()
+
+
+def test_noise_is_seeded_and_of_the_drawn_size(front):
+    _, theta, pp = front
+    img = np.full(theta.shape + (3,), 128, np.uint8)
+    p = {"shot_gain": 0.004, "read_sd": 0.006, "noise_seed": 3}
+    a, b = sensor.apply(img, p, theta, pp), sensor.apply(img, p, theta, pp)
+    assert np.array_equal(a, b)
+    sd = a.astype(float).std()
+    assert 1.0 < sd < 12.0
+    assert not np.array_equal(a, sensor.apply(img, dict(p, noise_seed=4), theta, pp))
+
+
+def test_exposure_white_balance_and_jpeg(front):
+    _, theta, pp = front
+    img = np.full(theta.shape + (3,), 100, np.uint8)
+    gain = sensor.auto_exposure(sensor._to_linear(img / 255.0))
+    brighter = sensor.apply(img, {"exposure_ev": 0.5}, theta, pp)
+    darker = sensor.apply(img, {"exposure_ev": -0.5}, theta, pp)
+    assert (brighter > darker + 10).all()
+    night = np.full(theta.shape + (3,), 10, np.uint8)  # auto-exposure lifts a dark frame, at most 8x
+    assert sensor.auto_exposure(sensor._to_linear(night / 255.0)) == 8.0 and 0.5 <= gain <= 8.0
+    assert sensor.apply(night, {"exposure_ev": 0.0}, theta, pp).mean() > 3 * night.mean()
+    warm = sensor.apply(img, {"wb_gains": [1.1, 1.0, 0.9]}, theta, pp)
+    assert warm[0, 0, 0] > warm[0, 0, 1] > warm[0, 0, 2]
+    ramp = np.tile(np.linspace(0, 255, theta.shape[1]).astype(np.uint8)[None, :, None], (theta.shape[0], 1, 3))
+    jpg = sensor.apply(ramp, {"jpeg_quality": 70}, theta, pp)
+    assert jpg.shape == ramp.shape and jpg.dtype == np.uint8 and 0 < np.abs(jpg.astype(int) - ramp).mean() < 4
+
+
+def _cfg(tmp_path, render):
+    p = tmp_path / "cfg.yaml"
+    p.write_text(yaml.safe_dump({"rig": "configs/rigs/default.yaml", "render": render,
+                                 "scenes": [{"recipe": "scenes/highway_straight.yaml"}]}))
+    return p
+
+
+def test_quality_presets_fill_defaults_that_explicit_fields_override(tmp_path):
+    draft = load_config(_cfg(tmp_path, {"quality": "draft"}))["render"]
+    assert draft["samples"] == QUALITY["draft"]["samples"] and not any(draft["sensor"].values())
+    photo = load_config(_cfg(tmp_path, {}))["render"]
+    assert photo["quality"] == "photo" and photo["denoise"] and photo["sensor"]["noise"] and not photo["sensor"]["jpeg"]
+    mine = load_config(_cfg(tmp_path, {"quality": "photo", "samples": 8, "sensor": {"noise": False, "jpeg": True}}))["render"]
+    assert mine["samples"] == 8 and not mine["sensor"]["noise"] and mine["sensor"]["jpeg"] and mine["sensor"]["vignetting"]
+
+
+@pytest.mark.parametrize("render,field", [({"quality": "cinema"}, "render.quality"),
+                                          ({"sensor": {"blur": True}}, "render.sensor.blur"),
+                                          ({"sensor": {"noise": "yes"}}, "render.sensor.noise")])
+def test_bad_quality_or_sensor_field_is_one_line(tmp_path, render, field):
+    with pytest.raises(ConfigError) as e:
+        load_config(_cfg(tmp_path, render))
+    assert field in str(e.value) and "\n" not in str(e.value)

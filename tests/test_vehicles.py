@@ -1,0 +1,66 @@
+"""The procedural vehicles (pure numpy, no rendering): every body style stays inside its box, has the
+parts that make it read as a vehicle, paints only vehicle materials, and is the same for the same draw."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from blender_scripts import assets
+from blender_scripts.materials import MATERIAL_CLASSES
+from blender_scripts.vehicles import KIND_STYLES
+
+STYLES = [(kind, style) for kind, styles in KIND_STYLES.items() for style in styles]
+PARTS = {"car_paint", "car_glass", "tyre", "rim", "headlight", "taillight", "plate", "grille", "trim"}
+
+
+@pytest.mark.parametrize("kind,style", STYLES)
+def test_every_style_fills_its_box_with_the_parts_of_a_vehicle(kind, style):
+    rng = np.random.default_rng(3)
+    for _ in range(5):
+        size = assets.vehicle_size(kind, rng, max_width=3.0)
+        m = assets.vehicle_mesh(kind, size, rng, style)
+        v = m.vertices
+        l, w, h = size
+        assert np.all(np.abs(v[:, 0]) <= l / 2 + 1e-6), f"{style}: a part sticks out of the box's length"
+        assert np.all(np.abs(v[:, 1]) <= w / 2 + 1e-6), f"{style}: a part sticks out of the box's width"
+        assert v[:, 2].min() >= -1e-6 and v[:, 2].max() <= h + 1e-6, f"{style}: a part above or below the box"
+        # it reaches the box: the body is not a shrunken copy
+        assert v[:, 0].max() > l / 2 - 0.03 and v[:, 0].min() < -l / 2 + 0.03 and v[:, 2].max() > 0.9 * h
+        assert PARTS <= set(m.mats), f"{style}: missing {PARTS - set(m.mats)}"
+        assert all(MATERIAL_CLASSES[n] == "vehicle" for n in m.mats)
+        assert max(max(f) for f in m.faces) < len(v) and min(min(f) for f in m.faces) >= 0
+        assert m.smooth_angle is not None
+    wheels = m.mats.count("tyre") / (7 * 20)  # a tyre: 7 bands of its cross-section, 20 quads round
+    assert wheels == (6 if kind == "truck" else 4)
+
+
+@pytest.mark.parametrize("kind,style", STYLES)
+def test_tyres_touch_the_ground_and_glass_sits_above_the_beltline(kind, style):
+    l, w, h = assets.VEHICLE_SIZES[kind][0]
+    m = assets.vehicle_mesh(kind, (l, w, h), np.random.default_rng(0), style)
+    v, mats = m.vertices, np.array(m.mats)
+    faces_z = {n: [] for n in ("tyre", "car_glass")}
+    for f, n in zip(m.faces, mats):
+        if n in faces_z:
+            faces_z[n].append(v[list(f), 2])
+    tyre = np.concatenate(faces_z["tyre"])
+    assert tyre.min() < 0.01, "the tyres float above the road"
+    glass = np.concatenate(faces_z["car_glass"])
+    assert np.median(glass) > 0.35 * h, "the glasshouse is below the body"
+
+
+def test_same_draw_same_vehicle_and_styles_differ():
+    size = (4.4, 1.8, 1.45)
+    a = assets.vehicle_mesh("car", size, np.random.default_rng(7), "sedan")
+    b = assets.vehicle_mesh("car", size, np.random.default_rng(7), "sedan")
+    assert np.array_equal(a.vertices, b.vertices) and a.faces == b.faces and a.mats == b.mats
+    c = assets.vehicle_mesh("car", size, np.random.default_rng(7), "wagon")
+    assert not (len(a.vertices) == len(c.vertices) and np.allclose(a.vertices, c.vertices))
+
+
+def test_ego_body_keeps_the_smooth_shading_and_its_own_materials():
+    mesh, box, kind, colour = assets.ego_body([(3.7, 0, 0.6), (-1.0, 0, 0.9), (1.9, 1.0, 1.0), (1.9, -1.0, 1.0)],
+                                              np.random.default_rng(1))
+    assert mesh.smooth_angle is not None
+    assert all(n.startswith("ego_") and MATERIAL_CLASSES[n] == "ego" for n in mesh.mats)
