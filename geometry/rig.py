@@ -180,6 +180,8 @@ def focal_scaled(camera: Camera, f: float) -> Camera:
     d = camera.to_dict()
     if "fx" in d:
         d["fx"], d["fy"] = d["fx"] * f, d["fy"] * f
+        if "s" in d:  # mei's skew scales with the focal length
+            d["s"] *= f
     elif d["model"] == "radial_poly":  # rho(theta) in pixels: every coefficient scales with the focal
         d["k"] = [k * f for k in d["k"]]
     else:
