@@ -236,6 +236,22 @@ class Camera:
         d["width"], d["height"] = int(width), int(height)
         return camera_from_dict(d)
 
+    MIN_IMAGE_SIDE: ClassVar[int] = 16  # pixels: an image smaller than this is no resize of a camera
+
+    def for_image(self, width: int, height: int) -> "Camera":
+        """The camera of a width x height image taken with this camera: itself at its own size, else
+        resized, when the image is a resize of it (the same aspect ratio within the rounding of a
+        resize, and at least MIN_IMAGE_SIDE pixels a side). Any other size is a CameraError (a 1 x 1
+        image is no picture of a 960 x 640 camera)."""
+        width, height = int(width), int(height)
+        if (width, height) == (self.width, self.height):
+            return self
+        expect = self.height * width / self.width
+        if min(width, height) < self.MIN_IMAGE_SIDE or abs(height - expect) > max(1.0, 0.005 * expect):
+            raise CameraError(f"a {width}x{height} image is not a resize of the {self.width}x{self.height} camera "
+                              f"(another aspect ratio, or under {self.MIN_IMAGE_SIDE} pixels a side)")
+        return self.resized(width, height)
+
     def cropped(self, x0: int, y0: int, width: int, height: int) -> "Camera":
         """The camera of the sub-image whose top-left pixel is (x0, y0) in this image."""
         d = self.to_dict()

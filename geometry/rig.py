@@ -138,9 +138,17 @@ class RigCamera:
 
 
 class Rig:
-    def __init__(self, cameras, name: str = "rig"):
+    def __init__(self, cameras, name: str = "rig", origins: dict | None = None):
         self.name = name
         self.cameras: "OrderedDict[str, RigCamera]" = OrderedDict((c.name, c) for c in cameras)
+        # camera name -> what its calibration became ("mei (exact) from cam.yaml", "opencv_fisheye
+        # (fitted, residual 2.99 px over its field of view) from calib_results.txt"); see describe()
+        self.origins: dict[str, str] = dict(origins or {})
+
+    def describe(self) -> list[str]:
+        """One line per camera: its name, model and whether it is its calibration exactly or a fit
+        (with the fit's residual in pixels); what the commands that load a rig print once."""
+        return [f"{n}: {self.origins.get(n) or f'{c.camera.model} (exact, given inline)'}" for n, c in self.cameras.items()]
 
     def __len__(self):
         return len(self.cameras)
@@ -268,7 +276,8 @@ def load_rig(path) -> Rig:
     path = Path(path)
     d = _read_mapping(path)
     if isinstance(d, dict) and "intrinsic" in d and "extrinsic" in d:
-        return Rig([woodscape_camera(d, str(path))])
+        rc = woodscape_camera(d, str(path))
+        return Rig([rc], origins={rc.name: f"radial_poly (exact) from WoodScape {path.name}"})
     if isinstance(d, dict) and isinstance(d.get("cameras"), dict) and any(
             isinstance(c, dict) and "calibration" in c for c in d["cameras"].values()):
         return assemble_rig(d, path)
@@ -340,7 +349,7 @@ def assemble_rig(d: dict, path) -> Rig:
 
     path = Path(path)
     ref = _extrinsics(d["reference_to_vehicle"], f"{path}: reference_to_vehicle") if "reference_to_vehicle" in d else np.eye(4)
-    cams = []
+    cams, origins = [], {}
     for name, c in d["cameras"].items():
         where = f"{path}: cameras.{name}"
         if not isinstance(c, dict) or "calibration" not in c:
@@ -355,9 +364,11 @@ def assemble_rig(d: dict, path) -> Rig:
                                                    and "intrinsic" in (_read_mapping(file) or {})):
                 rc = woodscape_camera(_read_mapping(file), str(file))
                 camera, pose = rc.camera, np.linalg.inv(ref) @ rc.cam_to_ego  # already in the vehicle frame
+                origins[str(name)] = f"radial_poly (exact) from WoodScape {file.name}"
             else:
                 imp = import_calibration(file, c.get("format"), c.get("camera"))
                 camera, pose = imp.camera, imp.cam_to_ref
+                origins[str(name)] = f"{imp.describe()} from {file.name}" + (f" {c['camera']}" if c.get("camera") else "")
         except CalibrationError as exc:
             raise RigError(f"{where}.calibration: {exc}") from None
         if "extrinsics" in c:
@@ -367,4 +378,4 @@ def assemble_rig(d: dict, path) -> Rig:
         else:
             raise RigError(f"{where}: needs 'extrinsics' ({file.name} holds no pose)")
         cams.append(RigCamera(str(name), camera, cam_to_ego))
-    return Rig(cams, str(d.get("name", path.stem)))
+    return Rig(cams, str(d.get("name", path.stem)), origins)

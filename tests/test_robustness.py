@@ -25,7 +25,7 @@ from dataset_tools.__main__ import COMMANDS as DATASET_COMMANDS
 from robust_cases import CASES
 
 ROOT = Path(__file__).resolve().parents[1]
-COMMANDS = {name: module for name, (module, _) in DATASET_COMMANDS.items()} | {"train": "train", "eval": "eval"}
+COMMANDS = {name: module for name, (module, _) in DATASET_COMMANDS.items()} | {"train": "train", "eval": "eval", "predict": "predict"}
 WRITES_DATASET = {"fuse", "index", "stats", "inspect", "contact_sheet"}  # may write into the data set they are given
 TEMP = re.compile(r"^\..+\.tmp(\.[A-Za-z0-9]+)?$")
 PROGRESS = re.compile(r"\d+%\||\d+/\d+ \[")  # a tqdm bar line
