@@ -715,3 +715,32 @@ add("predict-image-bomb", "predict", _predict(frame=lambda ctx, f: (f / "cam_lef
     needles=("cam_left.png", "60000x40000"))
 add("predict-frames-missing", "predict", lambda ctx: ["--checkpoint", str(ctx.ws / "none.pt"), "--frames", str(ctx.ws / "nothing"),
                                                       "--out", str(ctx.out)], needles=("nothing", "no such folder"))
+
+
+@case("export-woodscape-png-missing", "export-woodscape", needles=("cam_front.png", "missing"))
+def _(ctx):
+    ds = ctx.ds()
+    (_first_frame(ds) / "cam_front.png").unlink()
+    return [str(ds), str(ctx.out)]
+
+
+@case("export-woodscape-png-empty", "export-woodscape", needles=("cam_right.png", "0 bytes"))
+def _(ctx):
+    ds = ctx.ds()
+    (_first_frame(ds) / "cam_right.png").write_bytes(b"")
+    return [str(ds), str(ctx.out)]
+
+
+@case("export-woodscape-png-truncated", "export-woodscape", needles=("cam_left.png", "not a whole PNG"))
+def _(ctx):
+    ds = ctx.ds()
+    p = _first_frame(ds) / "cam_left.png"
+    p.write_bytes(p.read_bytes()[:100])
+    return [str(ds), str(ctx.out)]
+
+
+@case("export-woodscape-out-not-an-export", "export-woodscape", needles=("OUT", "export.json"))
+def _(ctx):
+    ctx.out.mkdir(parents=True)
+    (ctx.out / "mine.txt").write_text("not an export\n")
+    return [str(ctx.ds()), str(ctx.out)]
