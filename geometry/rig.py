@@ -178,6 +178,30 @@ class Rig:
         return Rig([RigCamera(c.name, fn(c.camera), c.cam_to_ego.copy()) for c in self], self.name)
 
 
+def rig_difference(a: Rig, b: Rig, tol: float = 1e-6) -> str | None:
+    """None where rig b is rig a (the same camera names, models, calibrations up to a resize of the
+    images, and poses, within `tol` relative / metres), else the first difference, in words."""
+    if a.names != b.names:
+        return f"cameras {', '.join(b.names)} against {', '.join(a.names)}"
+    for ca, cb in zip(a, b):
+        if ca.camera.model != cb.camera.model:
+            return f"camera {ca.name}: model {cb.camera.model} against {ca.camera.model}"
+        try:
+            other = cb.camera.resized(ca.camera.width, ca.camera.height)
+        except CameraError:
+            return f"camera {ca.name}: another calibration"
+        da, db = ca.camera.to_dict(), other.to_dict()
+        for k, va in da.items():
+            if k == "model":
+                continue
+            x, y = np.atleast_1d(np.asarray(va, dtype=np.float64)), np.atleast_1d(np.asarray(db[k], dtype=np.float64))
+            if x.shape != y.shape or np.any(np.abs(x - y) > tol * np.maximum(1.0, np.abs(x))):
+                return f"camera {ca.name}: {k} {db[k]} against {va} (at {ca.camera.width}x{ca.camera.height})"
+        if np.abs(ca.cam_to_ego - cb.cam_to_ego).max() > tol:
+            return f"camera {ca.name}: another pose (camera-to-vehicle transform)"
+    return None
+
+
 # Per-scene rig jitter at scale 1: mount position (m, per axis), mount angles (deg, about each camera
 # axis), focal length (fraction); each drawn uniformly in +-these (docs/scene-variety.md).
 JITTER = {"translation_m": 0.03, "angle_deg": 2.0, "focal": 0.03}

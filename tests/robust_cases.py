@@ -744,3 +744,41 @@ def _(ctx):
     ctx.out.mkdir(parents=True)
     (ctx.out / "mine.txt").write_text("not an export\n")
     return [str(ctx.ds()), str(ctx.out)]
+
+
+def _other_rig(rig: dict) -> dict:
+    """The same rig (same camera names) with the front camera's focal length changed: another calibration."""
+    import copy
+
+    rig = copy.deepcopy(rig)
+    rig["cameras"]["front"]["intrinsics"]["fx"] *= 1.5
+    return rig
+
+
+def _index_with_other_rig(ctx, ds):
+    d = json.loads((ds / "index.json").read_text())
+    d["rig"] = _other_rig(d["rig"])
+    (ds / "index.json").write_text(json.dumps(d))
+
+
+add("eval-data-other-rig", "eval", evaluate(data=lambda ctx: ctx.ds(edit=_index_with_other_rig)),
+    needles=("ds", "another rig", "camera front", "fx"))
+
+
+def _compare(a, b, data=True):
+    def build(ctx):
+        args = ["--compare", str(a(ctx)), str(b(ctx)), "--out", str(ctx.out)]
+        return args + (["--data", str(ctx.ds())] if data else [])
+    return build
+
+
+def _ckpt(ctx):
+    return ctx.checkpoint
+
+
+add("eval-compare-b-missing", "eval", _compare(_ckpt, lambda ctx: ctx.ws / "none.pt"), needles=("--compare B", "none.pt"))
+add("eval-compare-a-garbage", "eval", _compare(ckpt_file(lambda ctx: b"garbage"), _ckpt), needles=("--compare A", "model.pt", "checkpoint"))
+add("eval-compare-b-other-rig", "eval", _compare(_ckpt, ckpt_file(lambda ctx: {**ctx.checkpoint_dict(), "rig": _other_rig(ctx.checkpoint_dict()["rig"])})),
+    needles=("--compare B", "another rig", "camera front"))
+add("eval-compare-a-other-rig", "eval", _compare(ckpt_file(lambda ctx: {**ctx.checkpoint_dict(), "rig": _other_rig(ctx.checkpoint_dict()["rig"])}), _ckpt),
+    needles=("--compare A", "model.pt", "another rig"))
