@@ -139,3 +139,38 @@ def test_heldout_seeds_never_overlap_training_and_held_out_families_stay_out(tmp
     for scenes, hold, words in refused:
         with pytest.raises(ConfigError, match=words):
             load_config(_config(tmp_path, scenes, hold_out=hold))
+
+
+def test_a_scene_that_fails_to_build_does_not_stop_the_others():
+    """Issue 34: `generate` stopped the whole data set at the first scene whose layout failed. The
+    driver's pool slots now give that scene up (its error names the scene and its recipe), finish
+    every other scene, and the run exits 1 (generation.driver.run); the same command redoes only
+    what is missing. Fake workers here: the logic, without Blender."""
+    import queue
+    from types import SimpleNamespace
+
+    from dataset_tools.generation.driver import WorkerFailed, _drive
+
+    started = []
+
+    class Fake:
+        def __init__(self):
+            started.append(self)
+
+        def run(self, task):
+            if task.scene == "bad":
+                raise WorkerFailed("bad (recipe DATA/recipes/bad.yaml): ValueError: roadside.bridges: 1, but no overpass fits")
+            for f in task.frames:
+                yield {"frame": f}
+
+        def close(self):
+            pass
+
+    q = queue.Queue()
+    for scene, frames in [("a", [0, 1]), ("bad", [0]), ("bad", [1]), ("b", [0, 1, 2])]:
+        q.put(SimpleNamespace(scene=scene, frames=frames))
+    got, errors, failed = [], [], set()
+    _drive(q, Fake, lambda task, msg: got.append((task.scene, msg["frame"])), errors, True, failed)
+    assert got == [("a", 0), ("a", 1), ("b", 0), ("b", 1), ("b", 2)]
+    assert failed == {"bad"} and len(errors) == 1 and "bad (recipe DATA/recipes/bad.yaml)" in str(errors[0])
+    assert len(started) == 2  # a fresh worker after the failed one (it ends after reporting)
