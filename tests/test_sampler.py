@@ -67,7 +67,8 @@ def test_many_sampled_recipes_of_every_family_build():
     failed in the layout builder (`min() arg is an empty sequence`): invisible in 30 recipes, certain
     in thousands. The sampler now draws only what builds. Here 400 recipes of every family and 300
     urban blocks (the failing family; about 30 s on a loaded 2-core machine); SAMPLED_LAYOUTS=5000 for the issue's
-    5,000 (measured: about 3.5 minutes on one core)."""
+    5,000 (measured 2026-11-25: 5,000 of every family and 1,666 urban blocks, all built, in 333 s at nice 19 on
+    the shared 2-core machine)."""
     import os
     import time
 
