@@ -5,10 +5,14 @@
 FRAMES is one frame (a folder with one image per rig camera, `<camera>.png|jpg` or `cam_<camera>.png`)
 or a folder of such frame folders. RIG is any rig file `geometry.load_rig` reads (inline cameras,
 calibration files of OpenCV, Kalibr, OCamCalib or WoodScape); a rendered frame of ours needs none
-(its meta.json has its rig). The rig must have as many cameras as the training rig, listed in the
-same order (front, rear, left, right for ours): the model lifts each image through its own camera
-and pose, and pools them in that order. Each image is brought to the model's input size with its
-camera (an image of another size than its calibration is taken as a resize of it).
+(its meta.json has its rig). The rig must have as many cameras as the training rig; they are
+matched to the model's cameras by name (ours: front, left, rear, right, the training rig's order),
+or, where the rig names them otherwise, by `--cameras A,B,C,D`: the rig's cameras in the model's
+order. The model lifts each image through its own camera and pose, and pools them in the model's
+order (a pooling with per-camera parameters must get each camera in its own place). Each image is
+brought to the model's input size with its camera (an image of another size than its calibration
+is taken as a resize of it; one that cannot be, such as 1 x 1, is refused). What each camera of
+the rig became (model, exact or fitted with its residual) is printed once.
 
 Writes OUT/<frame>.npz (`semantic` uint8 class ids 1..K-1, `visibility` float32 p(o),
 `occlusion_logit` float32, on the model's BEV grid) and OUT/<frame>.png. On a frame of the training
@@ -27,8 +31,9 @@ import torch
 from common.cli import ArgumentParser, run_cli
 from common.errors import InputError
 from common.files import output_dir, write_bytes_atomic
-from dataset_tools.stitch import IMAGE_SUFFIXES, read_images, rig_for
-from geometry.rig import Rig, RigCamera
+from dataset_tools.stitch import IMAGE_SUFFIXES, image_paths, read_image, rig_for
+from dataset_tools.stitch import rig_of_images as _rig_of_images
+from geometry.rig import Rig, load_rig
 from model.augment import warp_image
 from model.checkpoint import in_precision, load_checkpoint
 from model.frustum import Frustum
@@ -48,6 +53,10 @@ def frame_folders(root: Path) -> list[Path]:
 
     if not root.is_dir():
         raise PredictError(f"{root}: no such folder")
+    from dataset_tools.format.layout import META
+
+    if (root / META).is_file():  # one rendered frame (its labels/ folder is no frame of its own)
+        return [root]
     frames = sorted(p for p in root.iterdir() if p.is_dir() and has_images(p))
     if frames:
         return frames
@@ -56,14 +65,30 @@ def frame_folders(root: Path) -> list[Path]:
     return [root]
 
 
+def in_model_order(rig: Rig, model_names, source: str, cameras: list[str] | None = None) -> Rig:
+    """The rig's cameras in the model's camera order: matched by name, or, where the rig names them
+    otherwise, as `cameras` (--cameras: the rig's cameras in the model's order) says. Refused, naming
+    `source` (the rig file or option), where the number of cameras or the names do not fit."""
+    model_names = list(model_names)
+    if len(rig) != len(model_names):
+        raise PredictError(f"{source}: {len(rig)} cameras ({', '.join(rig.names)}), the model was trained with "
+                           f"{len(model_names)} ({', '.join(model_names)})")
+    if cameras is None:
+        if set(rig.names) != set(model_names):
+            raise PredictError(f"{source}: cameras {', '.join(rig.names)} are not the model's ({', '.join(model_names)}); "
+                               f"give --cameras with the rig's cameras in the model's order")
+        cameras = model_names
+    elif sorted(cameras) != sorted(rig.names):
+        raise PredictError(f"--cameras: {','.join(cameras)} must name each camera of {source} once ({', '.join(rig.names)})")
+    return Rig([rig[n] for n in cameras], rig.name, rig.origins)
+
+
 class RigModel:
     """A trained model and the lift geometry of one rig: the images of a frame -> Prediction."""
 
-    def __init__(self, model, cfg: dict, train_rig_dict: dict, rig):
+    def __init__(self, model, cfg: dict, train_rig_dict: dict, rig, source: str = "--rig", cameras: list[str] | None = None):
         self.model, self.cfg = model, cfg
-        if len(rig) != len(model.camera_names):
-            raise PredictError(f"rig '{rig.name}': {len(rig)} cameras, the model was trained with {len(model.camera_names)} "
-                               f"({', '.join(model.camera_names)})")
+        rig = in_model_order(rig, model.camera_names, source, cameras)
         self.rig = rig
         self.rectify = rectifier(rig, cfg)
         self.frustum = Frustum(model_rig(rig, cfg), cfg)
@@ -88,14 +113,10 @@ class RigModel:
         return predict(self.model, batch)
 
 
-def rig_of_images(rig: Rig, images: dict) -> Rig:
+def rig_of_images(rig: Rig, images: dict, paths: dict | None = None) -> Rig:
     """The rig with each camera resized to its image (an image of another size than its calibration
-    is a resize of it: its camera goes with it)."""
-    def fit(rc):
-        h, w = images[rc.name].shape[:2]
-        return rc.camera if (h, w) == (rc.camera.height, rc.camera.width) else rc.camera.resized(w, h)
-
-    return Rig([RigCamera(rc.name, fit(rc), rc.cam_to_ego) for rc in rig], rig.name)
+    is a resize of it: its camera goes with it; one that cannot be is refused, naming the image)."""
+    return _rig_of_images(rig, images, paths)
 
 
 def save_prediction(path: Path, pred: Prediction) -> None:
@@ -145,7 +166,10 @@ def main(argv=None) -> int:
     p.add_argument("--no-pictures", action="store_true", help="write only the .npz predictions")
     p.add_argument("--threads", type=int, default=0, help="torch threads (default: torch's choice)")
     p.add_argument("--precision", choices=("fp32", "bf16"), help="run the model in fp32 or bf16 (default: as trained)")
+    p.add_argument("--cameras", help="the rig's cameras in the model's order, comma-separated (default: matched by name; "
+                                     "needed where the rig names its cameras otherwise than the training rig)")
     a = p.parse_args(argv)
+    cameras = [c.strip() for c in a.cameras.split(",")] if a.cameras else None
     if a.threads < 0:
         raise PredictError(f"--threads: must be >= 0, got {a.threads}")
     if a.threads:
@@ -159,13 +183,22 @@ def main(argv=None) -> int:
 
     class_names = list(TRAIN_CLASSES)[: ckpt["num_classes"]]
     rig_models: dict = {}
+    given = load_rig(a.rig) if a.rig else None
+    described = False
     for frame in frames:
-        rig = rig_for(frame, a.rig)
-        images = read_images(frame, rig.names)
-        rig = rig_of_images(rig, images)
+        rig = given or rig_for(frame, None)
+        source = f"--rig {a.rig}" if a.rig else str(frame / "meta.json")
+        if not described:  # once: what each camera of the rig became
+            for line in rig.describe():
+                print(f"rig {a.rig or frame}: {line}")
+            described = True
+        rig = in_model_order(rig, model.camera_names, source, cameras)  # before its images are looked for
+        paths = image_paths(frame, rig.names)
+        images = {n: read_image(q) for n, q in paths.items()}
+        rig = rig_of_images(rig, images, paths)
         key = str(rig.to_dict())
         if key not in rig_models:
-            rig_models[key] = RigModel(model, cfg, ckpt["rig"], rig)
+            rig_models[key] = RigModel(model, cfg, ckpt["rig"], rig, source, cameras)
         rm = rig_models[key]
         pred = rm(images)
         name = frame.name

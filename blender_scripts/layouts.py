@@ -173,10 +173,9 @@ def _speeds(rng, n, speed_range, ego_speed, ego_lane):
     return sp
 
 
-def route_length(recipe) -> float:
-    """Road length needed so the ego's whole drive stays 120 m clear of the ends."""
-    travel = recipe["ego"]["speed_kmh"] / 3.6 * recipe["frames"]["count"] / recipe["frames"]["rate_hz"]
-    return max(recipe["layout"]["length"], travel + 2 * abs(recipe["ego"]["start"]) + 240.0)
+# the road plan's numbers (route length, junction positions and size, room for overpasses) are shared
+# with the sampler, which must only draw what builds: dataset_tools.generation.recipe
+from dataset_tools.generation.recipe import bridge_stations, junction_crossings, junction_zone, route_length  # noqa: E402
 
 
 # ---------------------------------------------------------------- families
@@ -256,7 +255,7 @@ def junctions(recipe, rng, crossings, arms=(1, -1), buildings=False) -> tuple[La
     road = Road(path, n, w, median, 0.5)
     arm_half = 0.2 + n * w + 0.5
     sw = rs["sidewalk_width"]
-    zone = arm_half + sw + 6.0  # half size of a junction along the main road
+    zone = junction_zone(recipe)  # half size of a junction along the main road
     skip = [(x + L / 2 - zone, x + L / 2 + zone) for x in crossings]
     road.surface(lay, "main_road")
     road.markings(lay, "main_markings", skip=skip, dash=3.0, gap=5.0)
@@ -304,7 +303,10 @@ def junctions(recipe, rng, crossings, arms=(1, -1), buildings=False) -> tuple[La
                 _sidewalk(lay, f"main{side:+d}_{k}", path, a, b, road.half, sw, side)
     bridges = recipe["roadside"]["bridges"]
     for k in range(bridges):
-        cands = [s for s in np.linspace(20, L - 20, 80) if all(not (a - 10 < s < b + 10) for a, b in skip)]
+        cands = bridge_stations(recipe)
+        if not cands:
+            raise ValueError(f"roadside.bridges: {bridges}, but no overpass fits between the junctions of this "
+                             f"{recipe['family']} (block_length {recipe['layout'].get('block_length')} m)")
         s = cands[int(rng.integers(len(cands)))] if k else min(cands, key=lambda s: abs(s - L / 2 - 12))
         _overpass(lay, f"overpass{k}", path, s, road.half + sw, rng)
         for e in edges:
@@ -508,15 +510,10 @@ def build_layout(recipe, rng: np.random.Generator) -> Layout:
     fam, p = recipe["family"], recipe["layout"]
     if fam == "highway":
         lay, edges = highway(recipe, rng)
-    elif fam == "intersection":
-        lay, edges = junctions(recipe, rng, [0.0 + 25.0])
+    elif fam in ("intersection", "urban_block"):
+        lay, edges = junctions(recipe, rng, junction_crossings(recipe))
     elif fam == "t_junction":
-        lay, edges = junctions(recipe, rng, [25.0], arms=(1,))
-    elif fam == "urban_block":
-        L = route_length(recipe)
-        b = p["block_length"]
-        xs = [b / 2 + k * b for k in range(-int(L / b) - 1, int(L / b) + 1) if abs(b / 2 + k * b) < L / 2 - 40]
-        lay, edges = junctions(recipe, rng, xs)
+        lay, edges = junctions(recipe, rng, junction_crossings(recipe), arms=(1,))
     elif fam == "roundabout":
         lay, edges = roundabout(recipe, rng)
     elif fam == "parking_lot":

@@ -94,8 +94,16 @@ def clean_stale_temps(folder, recursive: bool = True) -> int:
     return n
 
 
-def read_text(path, error=InputError) -> str:
+def read_text(path, error=InputError, max_bytes: int | None = None) -> str:
+    """A UTF-8 text file; `max_bytes`: refuse a bigger one (one line naming it and its size)."""
     path = Path(path)
+    if max_bytes is not None:
+        try:
+            size = path.stat().st_size
+        except OSError:
+            size = 0
+        if size > max_bytes:
+            raise error(f"{path}: {size} bytes, more than a config may have ({max_bytes})")
     try:
         return path.read_bytes().decode("utf-8")
     except FileNotFoundError:
@@ -132,6 +140,8 @@ class _NoAliasLoader(yaml.SafeLoader):
             self._depth -= 1
 
 
+SafeYamlLoader = _NoAliasLoader  # subclass it (e.g. for OpenCV's tags): aliases and nesting stay limited
+
 # YAML 1.1 (PyYAML) reads 1e-5 as a string; take YAML 1.2's floats (a dot is optional)
 _NoAliasLoader.add_implicit_resolver(
     "tag:yaml.org,2002:float",
@@ -140,24 +150,25 @@ _NoAliasLoader.add_implicit_resolver(
 )
 
 
-def parse_yaml(text: str):
-    """YAML text -> data (no aliases, at most MAX_NESTING levels); raises yaml.YAMLError."""
-    return yaml.load(text, Loader=_NoAliasLoader)
+def parse_yaml(text: str, loader=None):
+    """YAML text -> data (no aliases, at most MAX_NESTING levels); raises yaml.YAMLError.
+    `loader`: a subclass of SafeYamlLoader (extra tags), by default SafeYamlLoader itself."""
+    loader = loader or _NoAliasLoader
+    if not issubclass(loader, _NoAliasLoader):
+        raise TypeError("parse_yaml: the loader must subclass common.files.SafeYamlLoader")
+    return yaml.load(text, Loader=loader)  # noqa: S506 - a SafeLoader subclass
 
 
-def read_yaml(path, error=ConfigError):
+def read_yaml(path, error=ConfigError, loader=None, text_filter=None):
     """A YAML file's content; an unreadable, oversized or malformed file raises `error` with one
-    line naming it."""
+    line naming it. `loader`: as parse_yaml's; `text_filter`: text -> text before parsing (e.g. to
+    drop OpenCV's `%YAML:1.0` directive, which PyYAML refuses)."""
     path = Path(path)
+    text = read_text(path, error, MAX_YAML_BYTES)
+    if text_filter is not None:
+        text = text_filter(text)
     try:
-        size = path.stat().st_size
-    except OSError:
-        size = 0
-    if size > MAX_YAML_BYTES:
-        raise error(f"{path}: {size} bytes, more than a config may have ({MAX_YAML_BYTES})")
-    text = read_text(path, error)
-    try:
-        return parse_yaml(text)
+        return parse_yaml(text, loader)
     except yaml.YAMLError as exc:
         first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         raise error(f"{path}: not valid YAML ({first})") from None

@@ -21,6 +21,8 @@ from __future__ import annotations
 
 import json
 import math
+import os
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -112,6 +114,24 @@ def vehicle_polygons(semantic: np.ndarray, instance: np.ndarray):
     return out
 
 
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+
+
+def camera_png_bytes(path: Path) -> bytes:
+    """A frame's camera PNG, checked: missing, empty (0 bytes) or not a PNG is bad input naming it."""
+    try:
+        data = path.read_bytes()
+    except FileNotFoundError:
+        raise ExportError(f"{path}: missing (the frame has no image for this camera)") from None
+    except IsADirectoryError:
+        raise ExportError(f"{path}: is a folder, not a PNG") from None
+    if not data:
+        raise ExportError(f"{path}: empty (0 bytes), not a PNG")
+    if not data.startswith(PNG_SIGNATURE) or b"IEND" not in data[-16:]:
+        raise ExportError(f"{path}: not a whole PNG file")
+    return data
+
+
 def export_frame(ref, fid: str, out: Path, lut: np.ndarray) -> dict:
     from .format.meta import read_meta
 
@@ -123,7 +143,7 @@ def export_frame(ref, fid: str, out: Path, lut: np.ndarray) -> dict:
             raise ExportError(f"{files.meta}: camera '{rc.name}' has no WoodScape name (one of: {', '.join(CAMERA_NAMES)})")
         cam = CAMERA_NAMES[rc.name]
         stem = f"{fid}_{cam}"
-        write_bytes_atomic(out / "rgb_images" / f"{stem}.png", files.camera_png(rc.name).read_bytes())
+        write_bytes_atomic(out / "rgb_images" / f"{stem}.png", camera_png_bytes(files.camera_png(rc.name)))
         passes = read_camera_passes(files.camera_exr(rc.name))
         camera = rc.camera
         h, w = passes["semantic"].shape
@@ -153,8 +173,31 @@ def export_frame(ref, fid: str, out: Path, lut: np.ndarray) -> dict:
 
 
 def export(data, out) -> dict:
+    """Export the data set `data` into `out`, atomically: everything is written into a hidden temp
+    folder beside `out` (`.<out>.<pid>.tmp`), which then replaces `out` (an earlier export there,
+    stale frames and calibrations included, goes as a whole); a failure leaves `out` as it was.
+    `out` must be missing, empty or an earlier export (its export.json): other files are never removed."""
     index = DatasetIndex(data)
     out = Path(out)
+    if out.is_dir() and any(out.iterdir()) and not (out / "export.json").is_file():
+        raise ExportError(f"OUT: {out} holds files but no earlier export (export.json); give a new or empty folder")
+    tmp = out.parent / f".{out.name}.{os.getpid()}.tmp"
+    shutil.rmtree(tmp, ignore_errors=True)
+    try:
+        summary = _export_into(index, data, tmp)
+        old = out.parent / f".{out.name}.{os.getpid()}.old"
+        shutil.rmtree(old, ignore_errors=True)
+        if out.exists():
+            os.replace(out, old)
+        os.replace(tmp, out)
+        shutil.rmtree(old, ignore_errors=True)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return summary
+
+
+def _export_into(index, data, out: Path) -> dict:
     lut = woodscape_lut()
     for sub in ("rgb_images", "calibration", "semantic_annotations/gtLabels", "semantic_annotations/rgbLabels", "instance_annotations",
                 "box_2d_annotations"):

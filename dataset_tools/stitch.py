@@ -50,9 +50,27 @@ def bilinear(image: np.ndarray, uv: np.ndarray) -> np.ndarray:
     return top * (1 - dv) + bottom * dv
 
 
+def rig_of_images(rig: Rig, images: dict, paths: dict | None = None) -> Rig:
+    """The rig with each camera brought to its image's size (`Camera.for_image`: an image of another
+    size than its calibration is a resize of it, its camera goes with it; an image that cannot be a
+    resize of it, such as 1 x 1 for 960 x 640, is refused naming the image, `paths[name]`)."""
+    from geometry.cameras import CameraError
+    from geometry.rig import RigCamera
+
+    cams = []
+    for rc in rig:
+        h, w = np.asarray(images[rc.name]).shape[:2]
+        try:
+            cams.append(RigCamera(rc.name, rc.camera.for_image(w, h), rc.cam_to_ego))
+        except CameraError as exc:
+            raise StitchError(f"{(paths or {}).get(rc.name, rc.name)}: {exc}") from None
+    return Rig(cams, rig.name, rig.origins)
+
+
 def stitch(rig: Rig, images: dict, grid: BevGrid, height: float = 0.0, nearest: bool = False):
     """-> (bev (rows, cols, C) uint8, source (rows, cols) int: index of the camera in rig order, -1
-    where none sees the cell). An image of another size than its camera is taken as a resize of it.
+    where none sees the cell). An image of another size than its camera is taken as a resize of it
+    (`rig_of_images`: refused where it cannot be one).
     `nearest`: take the nearest pixel (for label images: class ids, one channel or more)."""
     pts = ground_points(grid, height)
     best = np.full(grid.shape, np.inf)
@@ -65,7 +83,10 @@ def stitch(rig: Rig, images: dict, grid: BevGrid, height: float = 0.0, nearest: 
             bev = np.zeros(grid.shape + image.shape[2:], dtype=np.float64)
         cam = rc.camera
         if image.shape[:2] != (cam.height, cam.width):
-            rc = type(rc)(rc.name, cam.resized(image.shape[1], image.shape[0]), rc.cam_to_ego)
+            try:
+                rc = type(rc)(rc.name, cam.for_image(image.shape[1], image.shape[0]), rc.cam_to_ego)
+            except ValueError as exc:  # CameraError
+                raise StitchError(f"{rc.name}: {exc}") from None
         uv, valid = rc.project_ego(pts)
         p_cam = pts @ rc.ego_to_cam[:3, :3].T + rc.ego_to_cam[:3, 3]
         angle = np.arccos(np.clip(p_cam[..., 2] / np.linalg.norm(p_cam, axis=-1), -1, 1))
@@ -81,21 +102,49 @@ def stitch(rig: Rig, images: dict, grid: BevGrid, height: float = 0.0, nearest: 
     return (bev[..., 0] if bev.shape[-1] == 1 else bev), source
 
 
-def read_images(folder: Path, names) -> dict:
-    from PIL import Image
+MAX_IMAGE_PIXELS = 100_000_000  # an image whose header promises more is refused before it is decoded
 
+
+def image_paths(folder: Path, names) -> dict:
+    """Camera name -> its image in `folder` (`<camera>.png|jpg|jpeg` or `cam_<camera>.png`)."""
     out = {}
     for n in names:
         found = [folder / f"{prefix}{n}{s}" for prefix in ("", "cam_") for s in IMAGE_SUFFIXES]
         found = [p for p in found if p.is_file()]
         if not found:
             raise StitchError(f"{folder}: no image for camera '{n}' (expected {n}.png, {n}.jpg or cam_{n}.png)")
-        try:
-            with Image.open(found[0]) as im:
-                out[n] = np.asarray(im.convert("RGB"))
-        except OSError as exc:
-            raise StitchError(f"{found[0]}: not a readable image ({exc})") from None
+        out[n] = found[0]
     return out
+
+
+def read_image(path: Path) -> np.ndarray:
+    """An image file as (H, W, 3) uint8 RGB: 16-bit images scaled to 8 bits (not clipped), grey
+    images made RGB; a file that is not an image, or whose header promises more than
+    MAX_IMAGE_PIXELS pixels (a decompression bomb), is refused naming it."""
+    from PIL import Image
+
+    limit, Image.MAX_IMAGE_PIXELS = Image.MAX_IMAGE_PIXELS, None  # we check the header's size ourselves, naming it
+    try:
+        with Image.open(path) as im:
+            Image.MAX_IMAGE_PIXELS = limit
+            w, h = im.size
+            if w * h > MAX_IMAGE_PIXELS:
+                raise StitchError(f"{path}: {w}x{h} pixels, more than an image may have ({MAX_IMAGE_PIXELS})")
+            if im.mode in ("I;16", "I;16B", "I;16L", "I;16N", "I"):  # 16-bit grey: scale 0..65535 to 0..255
+                a = np.asarray(im).astype(np.float64)
+                a = np.clip(np.rint(a / 257.0), 0, 255).astype(np.uint8)
+                return np.repeat(a[..., None], 3, axis=-1)
+            return np.asarray(im.convert("RGB"))
+    except Image.DecompressionBombError as exc:
+        raise StitchError(f"{path}: too many pixels to be an image ({exc})"[:300]) from None
+    except OSError as exc:
+        raise StitchError(f"{path}: not a readable image ({exc})") from None
+    finally:
+        Image.MAX_IMAGE_PIXELS = limit
+
+
+def read_images(folder: Path, names) -> dict:
+    return {n: read_image(p) for n, p in image_paths(folder, names).items()}
 
 
 def rig_for(folder: Path, rig_path: str | None) -> Rig:
@@ -108,6 +157,29 @@ def rig_for(folder: Path, rig_path: str | None) -> Rig:
     if not (folder / META).is_file():
         raise StitchError(f"{folder}: not a rendered frame (no {META}); give --rig")
     return read_meta(folder).camera_rig()
+
+
+MAX_BOUND_M = 500.0  # --bound: half the grid's side at most, metres
+MAX_CELLS_PER_SIDE = 8192  # --bound / --res: a grid of at most 8192 x 8192 cells
+
+
+def stitch_grid(bound: float, res: float, height: float = 0.0) -> BevGrid:
+    """The stitch's grid from --bound, --res (and --height), each checked and named when wrong."""
+    import math
+
+    if not (math.isfinite(bound) and 0 < bound <= MAX_BOUND_M):
+        raise StitchError(f"--bound: must be a number of metres in (0, {MAX_BOUND_M:g}], got {bound}")
+    if not (math.isfinite(res) and 0 < res <= bound):
+        raise StitchError(f"--res: must be a number of metres in (0, --bound], got {res}")
+    if not math.isfinite(height) or abs(height) > 100:
+        raise StitchError(f"--height: must be a number of metres in [-100, 100], got {height}")
+    if 2 * bound / res > MAX_CELLS_PER_SIDE:
+        raise StitchError(f"--bound/--res: {2 * bound:g} m at {res:g} m is {2 * bound / res:.0f} cells a side, "
+                          f"more than {MAX_CELLS_PER_SIDE} (a coarser --res or a smaller --bound)")
+    try:
+        return BevGrid.from_dict({"bound": bound, "res": res})
+    except ValueError as exc:
+        raise StitchError(f"--bound/--res: {exc}") from None
 
 
 def main(argv=None) -> int:
@@ -124,12 +196,13 @@ def main(argv=None) -> int:
     folder = Path(a.images)
     if not folder.is_dir():
         raise StitchError(f"{folder}: no such folder")
-    try:
-        grid = BevGrid.from_dict({"bound": a.bound, "res": a.res})
-    except ValueError as exc:
-        raise StitchError(f"--bound/--res: {exc}") from None
+    grid = stitch_grid(a.bound, a.res, a.height)
     rig = rig_for(folder, a.rig)
-    bev, source = stitch(rig, read_images(folder, rig.names), grid, a.height)
+    for line in rig.describe():
+        print(f"rig {a.rig or folder}: {line}")
+    paths = image_paths(folder, rig.names)
+    images = {n: read_image(p) for n, p in paths.items()}
+    bev, source = stitch(rig_of_images(rig, images, paths), images, grid, a.height)
     import io
 
     from PIL import Image

@@ -85,6 +85,10 @@ def _osl_values(camera: Camera) -> dict[str, str]:
     if isinstance(camera, KBTheta):
         p = list(camera.params["p"]) + [0.0] * (9 - len(camera.params["p"]))
         values["p"] = ", ".join(_osl_float(x) for x in p)
+    if camera.model == "mei":  # the disc where the distortion is one-to-one (finite stand-ins for inf)
+        r2_hi = min(camera.r2_radial, camera.r2_max)
+        values["r2_max"] = _osl_float(min(camera.r2_max, 1e30))
+        values["r_hi"] = _osl_float(math.sqrt(r2_hi) if math.isfinite(r2_hi) else 1e6)
     for attr in ("theta_max", "rho_max"):
         if attr in values:
             continue

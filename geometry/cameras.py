@@ -236,6 +236,22 @@ class Camera:
         d["width"], d["height"] = int(width), int(height)
         return camera_from_dict(d)
 
+    MIN_IMAGE_SIDE: ClassVar[int] = 16  # pixels: an image smaller than this is no resize of a camera
+
+    def for_image(self, width: int, height: int) -> "Camera":
+        """The camera of a width x height image taken with this camera: itself at its own size, else
+        resized, when the image is a resize of it (the same aspect ratio within the rounding of a
+        resize, and at least MIN_IMAGE_SIDE pixels a side). Any other size is a CameraError (a 1 x 1
+        image is no picture of a 960 x 640 camera)."""
+        width, height = int(width), int(height)
+        if (width, height) == (self.width, self.height):
+            return self
+        expect = self.height * width / self.width
+        if min(width, height) < self.MIN_IMAGE_SIDE or abs(height - expect) > max(1.0, 0.005 * expect):
+            raise CameraError(f"a {width}x{height} image is not a resize of the {self.width}x{self.height} camera "
+                              f"(another aspect ratio, or under {self.MIN_IMAGE_SIDE} pixels a side)")
+        return self.resized(width, height)
+
     def cropped(self, x0: int, y0: int, width: int, height: int) -> "Camera":
         """The camera of the sub-image whose top-left pixel is (x0, y0) in this image."""
         d = self.to_dict()
@@ -581,6 +597,145 @@ class DoubleSphere(Camera):
         return rays / rays.norm(dim=-1, keepdim=True), valid
 
 
+# ---------------------------------------------------------------- Mei's unified model with radtan (cv2.omnidir, Kalibr omni)
+
+
+def _radtan_t(x, y, k1, k2, p1, p2):
+    """The radial-tangential distortion of a unit-plane point (cv2.omnidir, Kalibr radtan)."""
+    r2 = x * x + y * y
+    radial = 1 + k1 * r2 + k2 * r2 * r2
+    return (x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x),
+            y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y)
+
+
+class Mei(Camera):
+    """Mei's unified model (cv2.omnidir, Kalibr `omni` + `radtan`): a point on the unit sphere
+    shifted by xi, (x, y) = (X, Y) / (Z + xi), distorted by k = [k1, k2, p1, p2] (radial-tangential)
+    to (xd, yd); u = fx xd + s yd + cx, v = fy yd + cy. xi = 0 is a pinhole with radtan distortion.
+
+    Domain: the sphere shift sees Z > -xi (xi <= 1) or Z > -1/xi (xi > 1), and the distortion
+    is kept where its radial part still increases (r < r_max, the first root of
+    d(r (1 + k1 r^2 + k2 r^4))/dr); unprojection inverts the distortion by Newton's method (2-D),
+    to SOLVE_TOL, with one last step carrying the gradients."""
+
+    model, keys = "mei", ("fx", "fy", "cx", "cy", "s", "xi", "k")
+    list_keys = {"k": (4, 4)}
+
+    def _validate(self):
+        super()._validate()
+        if self.params["xi"] < 0:
+            raise CameraError("mei: 'xi' must be >= 0")
+        k1, k2 = self.params["k"][:2]
+        # r_max: where r (1 + k1 r^2 + k2 r^4) stops increasing (roots of 1 + 3 k1 q + 5 k2 q^2, q = r^2)
+        q = np.roots([5 * k2, 3 * k1, 1.0]) if k2 != 0 else (np.array([-1 / (3 * k1)]) if k1 != 0 else np.array([]))
+        q = q.real[(np.abs(q.imag) < 1e-12) & (q.real > 0)]
+        r2_max = float(q.min()) if len(q) else math.inf
+        self.r2_radial = r2_max  # the radial part's own limit (the start of the inverse's search)
+        if any(self.params["k"][2:]):  # tangential terms: the distortion folds where its Jacobian's
+            # determinant first reaches 0 along some direction; keep to the disc inside (1e-3 margin)
+            r_hi = math.sqrt(r2_max) if math.isfinite(r2_max) else 1e3
+            r = np.linspace(0, r_hi, 4001)[1:, None]
+            a = np.linspace(0, 2 * math.pi, 721)[None, :]
+            det = self._jacobian_det(r * np.cos(a), r * np.sin(a))
+            bad = (det <= 0).any(axis=1)
+            if bad.any():
+                r2_max = min(r2_max, float(r[np.argmax(bad) - 1, 0]) ** 2 * 0.999)
+        xi = self.params["xi"]
+        if xi > 1:  # the lift needs 1 + (1 - xi^2) r^2 >= 0
+            r2_max = min(r2_max, 1 / (xi * xi - 1))
+        self.r2_max = r2_max
+
+    def _jacobian_det(self, x, y):
+        k1, k2, p1, p2 = self.params["k"]
+        r2 = x * x + y * y
+        radial = 1 + k1 * r2 + k2 * r2 * r2
+        dradial = 2 * k1 + 4 * k2 * r2
+        j11 = radial + x * dradial * x + 2 * p1 * y + 6 * p2 * x
+        j12 = x * dradial * y + 2 * p1 * x + 2 * p2 * y
+        j22 = radial + y * dradial * y + 6 * p1 * y + 2 * p2 * x
+        return j11 * j22 - j12 * j12
+
+    def _scaled_params(self, sx, sy):
+        d = super()._scaled_params(sx, sy)
+        d["s"] *= sx
+        return d
+
+    def _distort(self, x, y):
+        return _radtan_t(x, y, *self.params["k"])
+
+    def _project(self, p):
+        x, y, z = p.unbind(-1)
+        xi = self.xi
+        d = torch.sqrt(x * x + y * y + z * z)
+        den = z + xi * d
+        limit = xi if xi <= 1 else 1 / xi
+        ok = den > 0
+        den = torch.where(ok, den, torch.ones_like(den))
+        mx, my = x / den, y / den
+        valid = ok & (z > -limit * d) & (mx * mx + my * my < self.r2_max)
+        xd, yd = self._distort(mx, my)
+        return torch.stack([self.fx * xd + self.s * yd + self.cx, self.fy * yd + self.cy], -1), valid
+
+    def _undistort(self, xd, yd):
+        k1, k2, p1, p2 = self.params["k"]
+
+        def residual_and_jacobian(x, y):
+            r2 = x * x + y * y
+            radial = 1 + k1 * r2 + k2 * r2 * r2
+            dradial = 2 * k1 + 4 * k2 * r2  # d radial / d x = dradial * x
+            fx_, fy_ = _radtan_t(x, y, k1, k2, p1, p2)
+            j11 = radial + x * dradial * x + 2 * p1 * y + 6 * p2 * x
+            j12 = x * dradial * y + 2 * p1 * x + 2 * p2 * y
+            j21 = y * dradial * x + 2 * p1 * x + 2 * p2 * y
+            j22 = radial + y * dradial * y + 6 * p1 * y + 2 * p2 * x
+            return fx_ - xd_, fy_ - yd_, j11, j12, j21, j22
+
+        def newton(x, y):
+            ex, ey, a, b, c, d = residual_and_jacobian(x, y)
+            det = a * d - b * c
+            det = torch.where(det.abs() > _EPS, det, torch.ones_like(det))
+            return x - (d * ex - b * ey) / det, y - (-c * ex + a * ey) / det
+
+        with torch.no_grad():
+            xd_, yd_ = xd.detach(), yd.detach()
+            # start from the radial part's exact inverse (monotonic in r below r_max), then Newton in 2-D
+            rd = torch.sqrt(xd_ * xd_ + yd_ * yd_)
+            c = torch.tensor([1.0, 0.0, k1, 0.0, k2], dtype=rd.dtype)
+            r2_hi = min(self.r2_radial, self.r2_max)
+            r_hi = math.sqrt(r2_hi) if math.isfinite(r2_hi) else 1e6
+            ru = _invert_monotonic(lambda t: _poly(c, t), lambda t: _poly_deriv(c, t), rd, r_hi, rd)
+            scale = _safe_div(ru, rd) + (rd <= _EPS).to(rd.dtype)
+            x, y = xd_ * scale, yd_ * scale
+            for _ in range(100):
+                nx, ny = newton(x, y)
+                nx, ny = torch.nan_to_num(nx), torch.nan_to_num(ny)
+                if math.isfinite(r2_hi):  # stay on the disc where the distortion is one-to-one
+                    shrink = torch.clamp(r_hi / torch.sqrt(nx * nx + ny * ny).clamp(min=_EPS), max=1.0)
+                    nx, ny = nx * shrink, ny * shrink
+                delta = torch.maximum((nx - x).abs(), (ny - y).abs()).max() if x.numel() else torch.tensor(0.0)
+                x, y = nx, ny
+                if delta < SOLVE_TOL * 1e-2:
+                    break
+        xd_, yd_ = xd, yd  # the last step with gradients: the implicit-function derivative
+        x, y = newton(x, y)
+        ex, ey = _radtan_t(x.detach(), y.detach(), k1, k2, p1, p2)
+        tol = 1e-9 * torch.clamp(torch.maximum(xd.detach().abs(), yd.detach().abs()), min=1.0)
+        converged = ((ex - xd.detach()).abs() < tol) & ((ey - yd.detach()).abs() < tol)
+        return x, y, converged
+
+    def _unproject(self, uv):
+        yd = (uv[..., 1] - self.cy) / self.fy
+        xd = (uv[..., 0] - self.cx - self.s * yd) / self.fx
+        mx, my, converged = self._undistort(xd, yd)
+        r2 = mx * mx + my * my
+        xi = self.xi
+        valid = converged & (r2 < self.r2_max)
+        root = torch.sqrt((1 + (1 - xi * xi) * r2).clamp(min=0))
+        f = (xi + root) / (r2 + 1)
+        rays = torch.stack([f * mx, f * my, f - xi], -1)
+        return rays / rays.norm(dim=-1, keepdim=True), valid
+
+
 # ---------------------------------------------------------------- cylindrical
 
 
@@ -617,6 +772,7 @@ MODELS: dict[str, type[Camera]] = {
         UCM,
         EUCM,
         DoubleSphere,
+        Mei,
         Cylindrical,
     )
 }

@@ -138,9 +138,17 @@ class RigCamera:
 
 
 class Rig:
-    def __init__(self, cameras, name: str = "rig"):
+    def __init__(self, cameras, name: str = "rig", origins: dict | None = None):
         self.name = name
         self.cameras: "OrderedDict[str, RigCamera]" = OrderedDict((c.name, c) for c in cameras)
+        # camera name -> what its calibration became ("mei (exact) from cam.yaml", "opencv_fisheye
+        # (fitted, residual 2.99 px over its field of view) from calib_results.txt"); see describe()
+        self.origins: dict[str, str] = dict(origins or {})
+
+    def describe(self) -> list[str]:
+        """One line per camera: its name, model and whether it is its calibration exactly or a fit
+        (with the fit's residual in pixels); what the commands that load a rig print once."""
+        return [f"{n}: {self.origins.get(n) or f'{c.camera.model} (exact, given inline)'}" for n, c in self.cameras.items()]
 
     def __len__(self):
         return len(self.cameras)
@@ -170,6 +178,30 @@ class Rig:
         return Rig([RigCamera(c.name, fn(c.camera), c.cam_to_ego.copy()) for c in self], self.name)
 
 
+def rig_difference(a: Rig, b: Rig, tol: float = 1e-6) -> str | None:
+    """None where rig b is rig a (the same camera names, models, calibrations up to a resize of the
+    images, and poses, within `tol` relative / metres), else the first difference, in words."""
+    if a.names != b.names:
+        return f"cameras {', '.join(b.names)} against {', '.join(a.names)}"
+    for ca, cb in zip(a, b):
+        if ca.camera.model != cb.camera.model:
+            return f"camera {ca.name}: model {cb.camera.model} against {ca.camera.model}"
+        try:
+            other = cb.camera.resized(ca.camera.width, ca.camera.height)
+        except CameraError:
+            return f"camera {ca.name}: another calibration"
+        da, db = ca.camera.to_dict(), other.to_dict()
+        for k, va in da.items():
+            if k == "model":
+                continue
+            x, y = np.atleast_1d(np.asarray(va, dtype=np.float64)), np.atleast_1d(np.asarray(db[k], dtype=np.float64))
+            if x.shape != y.shape or np.any(np.abs(x - y) > tol * np.maximum(1.0, np.abs(x))):
+                return f"camera {ca.name}: {k} {db[k]} against {va} (at {ca.camera.width}x{ca.camera.height})"
+        if np.abs(ca.cam_to_ego - cb.cam_to_ego).max() > tol:
+            return f"camera {ca.name}: another pose (camera-to-vehicle transform)"
+    return None
+
+
 # Per-scene rig jitter at scale 1: mount position (m, per axis), mount angles (deg, about each camera
 # axis), focal length (fraction); each drawn uniformly in +-these (docs/scene-variety.md).
 JITTER = {"translation_m": 0.03, "angle_deg": 2.0, "focal": 0.03}
@@ -180,6 +212,8 @@ def focal_scaled(camera: Camera, f: float) -> Camera:
     d = camera.to_dict()
     if "fx" in d:
         d["fx"], d["fy"] = d["fx"] * f, d["fy"] * f
+        if "s" in d:  # mei's skew scales with the focal length
+            d["s"] *= f
     elif d["model"] == "radial_poly":  # rho(theta) in pixels: every coefficient scales with the focal
         d["k"] = [k * f for k in d["k"]]
     else:
@@ -266,7 +300,8 @@ def load_rig(path) -> Rig:
     path = Path(path)
     d = _read_mapping(path)
     if isinstance(d, dict) and "intrinsic" in d and "extrinsic" in d:
-        return Rig([woodscape_camera(d, str(path))])
+        rc = woodscape_camera(d, str(path))
+        return Rig([rc], origins={rc.name: f"radial_poly (exact) from WoodScape {path.name}"})
     if isinstance(d, dict) and isinstance(d.get("cameras"), dict) and any(
             isinstance(c, dict) and "calibration" in c for c in d["cameras"].values()):
         return assemble_rig(d, path)
@@ -338,7 +373,7 @@ def assemble_rig(d: dict, path) -> Rig:
 
     path = Path(path)
     ref = _extrinsics(d["reference_to_vehicle"], f"{path}: reference_to_vehicle") if "reference_to_vehicle" in d else np.eye(4)
-    cams = []
+    cams, origins = [], {}
     for name, c in d["cameras"].items():
         where = f"{path}: cameras.{name}"
         if not isinstance(c, dict) or "calibration" not in c:
@@ -353,9 +388,11 @@ def assemble_rig(d: dict, path) -> Rig:
                                                    and "intrinsic" in (_read_mapping(file) or {})):
                 rc = woodscape_camera(_read_mapping(file), str(file))
                 camera, pose = rc.camera, np.linalg.inv(ref) @ rc.cam_to_ego  # already in the vehicle frame
+                origins[str(name)] = f"radial_poly (exact) from WoodScape {file.name}"
             else:
                 imp = import_calibration(file, c.get("format"), c.get("camera"))
                 camera, pose = imp.camera, imp.cam_to_ref
+                origins[str(name)] = f"{imp.describe()} from {file.name}" + (f" {c['camera']}" if c.get("camera") else "")
         except CalibrationError as exc:
             raise RigError(f"{where}.calibration: {exc}") from None
         if "extrinsics" in c:
@@ -365,4 +402,4 @@ def assemble_rig(d: dict, path) -> Rig:
         else:
             raise RigError(f"{where}: needs 'extrinsics' ({file.name} holds no pose)")
         cams.append(RigCamera(str(name), camera, cam_to_ego))
-    return Rig(cams, str(d.get("name", path.stem)))
+    return Rig(cams, str(d.get("name", path.stem)), origins)

@@ -162,23 +162,35 @@ def evaluate_split(model, cfg, index: DatasetIndex, split: str, out: EvalDir, pi
     return res
 
 
-def open_checkpoint(checkpoint, data=None, expect_config: dict | None = None, precision: str | None = None):
+def open_checkpoint(checkpoint, data=None, expect_config: dict | None = None, precision: str | None = None, label: str = ""):
     """-> (model in eval mode, config, checkpoint dict, DatasetIndex) for scoring a checkpoint on
-    its data set (or on `data`, a data set root with the same cameras and classes); `precision`
-    (fp32 | bf16) runs it in another precision than it was trained in (model.precision)."""
-    if not Path(checkpoint).is_file():
-        raise EvalError(f"{checkpoint}: no such checkpoint")
-    model, cfg, ckpt = load_checkpoint(checkpoint, expect_config=expect_config)
-    model.eval()
-    if precision:
-        cfg = in_precision(model, cfg, precision)
-    if data:
-        cfg = {**cfg, "data": {**cfg["data"], "root": data}}
-    index = DatasetIndex(cfg["data"]["root"])
-    if index.rig.names != list(ckpt["rig"]["cameras"]):
-        raise EvalError(f"{index.root}: rig cameras {index.rig.names} differ from the checkpoint's {list(ckpt['rig']['cameras'])}")
-    if len(index.class_names) != ckpt["num_classes"]:
-        raise EvalError(f"{index.root}: {len(index.class_names)} classes, the checkpoint predicts {ckpt['num_classes']}")
+    its data set (or on `data`, a data set root with the same rig and classes: the same cameras,
+    calibrations up to a resize, and poses, not only the same names); `precision` (fp32 | bf16) runs
+    it in another precision than it was trained in (model.precision). `label` ("--compare A") starts
+    every error line, so that it says which checkpoint it is about."""
+    from common.errors import InputError
+    from geometry.rig import rig_difference, rig_from_dict
+
+    head = f"{label}: " if label else ""
+    try:
+        if not Path(checkpoint).is_file():
+            raise EvalError(f"{checkpoint}: no such checkpoint")
+        model, cfg, ckpt = load_checkpoint(checkpoint, expect_config=expect_config)
+        model.eval()
+        if precision:
+            cfg = in_precision(model, cfg, precision)
+        if data:
+            cfg = {**cfg, "data": {**cfg["data"], "root": data}}
+        index = DatasetIndex(cfg["data"]["root"])
+        diff = rig_difference(rig_from_dict(ckpt["rig"], f"{checkpoint}: rig"), index.rig)
+        if diff:
+            raise EvalError(f"{index.root}: rendered with another rig than the checkpoint {checkpoint} was trained on ({diff})")
+        if len(index.class_names) != ckpt["num_classes"]:
+            raise EvalError(f"{index.root}: {len(index.class_names)} classes, the checkpoint predicts {ckpt['num_classes']}")
+    except InputError as exc:
+        if not head:
+            raise
+        raise EvalError(f"{head}{exc}") from None
     return model, cfg, ckpt, index
 
 
@@ -210,6 +222,15 @@ def evaluate_checkpoint(checkpoint, split: str = "all", out=None, data=None, exp
     return table, out
 
 
+def _labelled(fn, arg, label: str):
+    from common.errors import InputError
+
+    try:
+        return fn(arg)
+    except InputError as exc:
+        raise EvalError(f"{label}: {exc}") from None
+
+
 def compare_checkpoints(checkpoint_a, checkpoint_b, split: str = "all", out=None, data=None, n: int = 1000,
                         precision: tuple[str | None, str | None] = (None, None)) -> tuple[str, EvalDir]:
     """eval.py --compare: score two checkpoints (or run folders) on the same frames (`data`, default
@@ -217,11 +238,19 @@ def compare_checkpoints(checkpoint_a, checkpoint_b, split: str = "all", out=None
     same scenes for both); `precision` (A's, B's) as open_checkpoint's. Writes comparison.json and comparison.md into `out` (default
     `<A's run folder>/compare_<B's run folder name>`), each side's confusion pictures in a/ and b/.
     -> (the Markdown table, the output folder)."""
-    a, b = checkpoint_path(checkpoint_a), checkpoint_path(checkpoint_b)
-    model_a, cfg_a, ckpt_a, index = open_checkpoint(a, data, precision=precision[0])
-    model_b, cfg_b, ckpt_b, _ = open_checkpoint(b, str(index.root), precision=precision[1])
+    a = _labelled(checkpoint_path, checkpoint_a, "--compare A")
+    b = _labelled(checkpoint_path, checkpoint_b, "--compare B")
+    model_a, cfg_a, ckpt_a, index = open_checkpoint(a, data, precision=precision[0], label="--compare A")
+    model_b, cfg_b, ckpt_b, _ = open_checkpoint(b, str(index.root), precision=precision[1], label="--compare B")
     if cfg_a["data"]["grid"] != cfg_b["data"]["grid"]:
-        raise EvalError(f"{b}: scores on the grid {cfg_b['data']['grid']}, {a} on {cfg_a['data']['grid']}: not the same cells to compare")
+        raise EvalError(f"--compare B: {b}: scores on the grid {cfg_b['data']['grid']}, A ({a}) on {cfg_a['data']['grid']}: "
+                        "not the same cells to compare")
+    if ckpt_a["rig"] != ckpt_b["rig"]:
+        from geometry.rig import rig_difference, rig_from_dict
+
+        diff = rig_difference(rig_from_dict(ckpt_a["rig"], f"{a}: rig"), rig_from_dict(ckpt_b["rig"], f"{b}: rig"))
+        if diff:
+            raise EvalError(f"--compare B: {b}: trained on another rig than A ({a}): {diff}")
     splits = [s for s in SPLITS if index.splits.get(s)] if split == "all" else [split]
     if not splits:
         raise EvalError(f"{index.root}: no split has frames")

@@ -24,7 +24,7 @@ NON_UTF8 = b"name: caf\xe9\nscenes: []\n"
 @dataclass
 class Case:
     id: str
-    command: str  # a `python -m dataset_tools` command (dataset_tools/__main__.py), train or eval
+    command: str  # a `python -m dataset_tools` command (dataset_tools/__main__.py), train, eval or predict
     build: Callable
     code: int = 2
     needles: tuple = ()
@@ -587,3 +587,198 @@ def _(ctx):
 def _(ctx):
     ctx.out_is_a_file()
     return [str(ctx.ds()), str(ctx.out)]
+
+
+# ------------------------------------------------------------------ issue 34: calibrations, images, rigs, exports, comparisons
+
+
+def png_header(width: int, height: int) -> bytes:
+    """A PNG that is only a header (IHDR) promising width x height pixels, and an empty image."""
+    import struct
+    import zlib
+
+    def chunk(kind, data):
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data) & 0xFFFFFFFF)
+
+    return (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", width, height, 8, 2, 0, 0, 0))
+            + chunk(b"IDAT", zlib.compress(b"")) + chunk(b"IEND", b""))
+
+
+def tiny_png(ctx, path):
+    import cv2
+
+    cv2.imwrite(str(path), np.zeros((1, 1, 3), np.uint8))
+
+
+def _frame_with(edit):
+    """A copy of the first rendered frame after `edit(ctx, frame_dir)`."""
+    def build(ctx):
+        f = _first_frame(ctx.ds())
+        edit(ctx, f)
+        return f
+    return build
+
+
+def _stitch_frame(edit, *extra):
+    def build(ctx):
+        return [str(_frame_with(edit)(ctx)), "--out", str(ctx.out / "bev.png"), *extra]
+    return build
+
+
+add("stitch-bound-inf", "stitch", _stitch_frame(lambda ctx, f: None, "--bound", "inf"), needles=("--bound", "inf"))
+add("stitch-bound-1000", "stitch", _stitch_frame(lambda ctx, f: None, "--bound", "1000"), needles=("--bound", "1000"))
+add("stitch-res-1e9", "stitch", _stitch_frame(lambda ctx, f: None, "--res", "1e9"), needles=("--res",))
+add("stitch-res-nan", "stitch", _stitch_frame(lambda ctx, f: None, "--res", "nan"), needles=("--res",))
+add("stitch-cells-too-many", "stitch", _stitch_frame(lambda ctx, f: None, "--bound", "400", "--res", "0.01"),
+    needles=("--bound/--res", "cells"))
+add("stitch-image-1x1", "stitch", _stitch_frame(lambda ctx, f: tiny_png(ctx, f / "cam_front.png")),
+    needles=("cam_front.png", "1x1", "not a resize"))
+add("stitch-image-bomb", "stitch", _stitch_frame(lambda ctx, f: (f / "cam_front.png").write_bytes(png_header(60000, 40000))),
+    needles=("cam_front.png", "60000x40000"))
+add("stitch-image-empty", "stitch", _stitch_frame(lambda ctx, f: (f / "cam_front.png").write_bytes(b"")),
+    needles=("cam_front.png", "not a readable image"))
+
+CV_FRONT = ("%YAML:1.0\n---\nK: !!opencv-matrix\n   rows: 3\n   cols: 3\n   dt: d\n   data: [ 20., 0., 31.5, 0., 20., 19.5, 0., 0., 1. ]\n"
+            "D: !!opencv-matrix\n   rows: 4\n   cols: 1\n   dt: d\n   data: [ 0., 0., 0., 0. ]\nimage_width: 64\nimage_height: 40\n")
+RIG_CV = "cameras:\n" + "".join(f"  {n}: {{calibration: cv.yaml, extrinsics: {{translation: [0, 0, 1], rotation: {{yaw_deg: {y}}}}}}}\n"
+                                for n, y in (("front", 0), ("left", 90), ("rear", 180), ("right", -90)))
+add("stitch-rig-opencv-pp-outside", "stitch", _stitch_with_rig(RIG_CV, cv=CV_FRONT.replace("image_width: 64", "image_width: 6")),
+    needles=("rig.yaml", "cameras.front", "cv.yaml", "outside the 6x40 image"))
+add("stitch-rig-opencv-rows-negative", "stitch", _stitch_with_rig(RIG_CV, cv=CV_FRONT.replace("rows: 4\n   cols: 1", "rows: -3\n   cols: -3")),
+    needles=("cv.yaml", "D", "rows"))
+add("stitch-rig-opencv-aliases", "stitch",
+    _stitch_with_rig(RIG_CV, cv=CV_FRONT + BILLION_LAUGHS.replace("a:", "za:").replace("&a", "&za").replace("*a", "*za")),
+    needles=("cv.yaml", "aliases"))
+add("stitch-rig-opencv-oversized", "stitch", _stitch_with_rig(RIG_CV, cv=CV_FRONT + "# " + "x" * (5 * 1024 * 1024) + "\n"),
+    needles=("cv.yaml", "bytes"))
+add("stitch-rig-opencv-size-huge", "stitch", _stitch_with_rig(RIG_CV, cv=CV_FRONT.replace("image_width: 64", "image_width: 6400000")),
+    needles=("cv.yaml", "image_width/image_height"))
+
+CHAIN_REFLECT = ("cam0:\n  T_cam_imu: [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, -1, 0], [0, 0, 0, 1]]\n  camera_model: pinhole\n"
+                 "  distortion_coeffs: [0, 0, 0, 0]\n  distortion_model: equidistant\n  intrinsics: [20, 20, 31.5, 19.5]\n  resolution: [64, 40]\n")
+add("stitch-rig-kalibr-reflection", "stitch",
+    _stitch_with_rig("cameras:\n" + "".join(f"  {n}: {{calibration: chain.yaml, camera: cam0}}\n" for n in ("front", "left", "rear", "right")),
+                     chain=CHAIN_REFLECT),
+    needles=("chain.yaml", "cam0", "T_cam_imu", "reflection"))
+add("stitch-rig-kalibr-pp-outside", "stitch",
+    _stitch_with_rig("cameras:\n" + "".join(f"  {n}: {{calibration: chain.yaml, camera: cam0}}\n" for n in ("front", "left", "rear", "right")),
+                     chain=CHAIN_REFLECT.replace("[0, 0, -1, 0]", "[0, 0, 1, 0]").replace("31.5, 19.5", "315, 19.5")),
+    needles=("chain.yaml", "cam0", "intrinsics", "outside"))
+
+
+def _ocam(center="19.5 31.5", size="40 64"):
+    return ("#pol\n3 -20.0 0.0 0.001\n#invpol\n1 20.0\n#center\n" + center + "\n#affine\n1 0 0\n#size\n" + size + "\n")
+
+
+def _stitch_ocam(text):
+    def build(ctx):
+        ctx.write("r/calib_results.txt", text)
+        rig = "cameras:\n" + "".join(f"  {n}: {{calibration: calib_results.txt, extrinsics: {{translation: [0, 0, 1], rotation: {{}}}}}}\n"
+                                      for n in ("front", "left", "rear", "right"))
+        return [str(_first_frame(ctx.ds())), "--out", str(ctx.out / "bev.png"), "--rig", str(ctx.write("r/rig.yaml", rig))]
+    return build
+
+
+add("stitch-rig-ocam-centre-outside", "stitch", _stitch_ocam(_ocam(center="195 315")), needles=("calib_results.txt", "center", "outside"))
+add("stitch-rig-ocam-size-huge", "stitch", _stitch_ocam(_ocam(size="4000000 6400000")), needles=("calib_results.txt", "image size"))
+
+
+def _predict(*extra, frame=None, rig=None):
+    """predict.py on a copy of the first rendered frame (after `frame(ctx, dir)`), with `rig(ctx)` as --rig."""
+    def build(ctx):
+        f = _first_frame(ctx.ds())
+        if frame:
+            frame(ctx, f)
+        args = ["--checkpoint", str(ctx.checkpoint), "--frames", str(f), "--out", str(ctx.out), "--no-pictures", *extra]
+        return args + (["--rig", str(rig(ctx))] if rig else [])
+    return build
+
+
+def _rig_of_frame(keep=None, rename=None):
+    def make(ctx):
+        import yaml
+
+        d = json.loads((_first_frame(ctx.ds()) / "meta.json").read_text())["rig"]
+        cams = {(rename or {}).get(n, n): c for n, c in d["cameras"].items() if keep is None or n in keep}
+        return ctx.write("r/mine.yaml", yaml.safe_dump({"name": "mine", "cameras": cams}))
+    return make
+
+
+add("predict-rig-3-cameras", "predict", _predict(rig=_rig_of_frame(keep=("front", "left", "rear"))),
+    needles=("--rig", "mine.yaml", "3 cameras"))
+add("predict-rig-other-names", "predict", _predict(rig=_rig_of_frame(rename={"rear": "back"})),
+    needles=("--rig", "mine.yaml", "--cameras"))
+add("predict-cameras-twice", "predict", _predict("--cameras", "front,front,left,right", rig=_rig_of_frame()), needles=("--cameras",))
+add("predict-image-1x1", "predict", _predict(frame=lambda ctx, f: tiny_png(ctx, f / "cam_rear.png")),
+    needles=("cam_rear.png", "not a resize"))
+add("predict-image-bomb", "predict", _predict(frame=lambda ctx, f: (f / "cam_left.png").write_bytes(png_header(60000, 40000))),
+    needles=("cam_left.png", "60000x40000"))
+add("predict-frames-missing", "predict", lambda ctx: ["--checkpoint", str(ctx.ws / "none.pt"), "--frames", str(ctx.ws / "nothing"),
+                                                      "--out", str(ctx.out)], needles=("nothing", "no such folder"))
+
+
+@case("export-woodscape-png-missing", "export-woodscape", needles=("cam_front.png", "missing"))
+def _(ctx):
+    ds = ctx.ds()
+    (_first_frame(ds) / "cam_front.png").unlink()
+    return [str(ds), str(ctx.out)]
+
+
+@case("export-woodscape-png-empty", "export-woodscape", needles=("cam_right.png", "0 bytes"))
+def _(ctx):
+    ds = ctx.ds()
+    (_first_frame(ds) / "cam_right.png").write_bytes(b"")
+    return [str(ds), str(ctx.out)]
+
+
+@case("export-woodscape-png-truncated", "export-woodscape", needles=("cam_left.png", "not a whole PNG"))
+def _(ctx):
+    ds = ctx.ds()
+    p = _first_frame(ds) / "cam_left.png"
+    p.write_bytes(p.read_bytes()[:100])
+    return [str(ds), str(ctx.out)]
+
+
+@case("export-woodscape-out-not-an-export", "export-woodscape", needles=("OUT", "export.json"))
+def _(ctx):
+    ctx.out.mkdir(parents=True)
+    (ctx.out / "mine.txt").write_text("not an export\n")
+    return [str(ctx.ds()), str(ctx.out)]
+
+
+def _other_rig(rig: dict) -> dict:
+    """The same rig (same camera names) with the front camera's focal length changed: another calibration."""
+    import copy
+
+    rig = copy.deepcopy(rig)
+    rig["cameras"]["front"]["intrinsics"]["fx"] *= 1.5
+    return rig
+
+
+def _index_with_other_rig(ctx, ds):
+    d = json.loads((ds / "index.json").read_text())
+    d["rig"] = _other_rig(d["rig"])
+    (ds / "index.json").write_text(json.dumps(d))
+
+
+add("eval-data-other-rig", "eval", evaluate(data=lambda ctx: ctx.ds(edit=_index_with_other_rig)),
+    needles=("ds", "another rig", "camera front", "fx"))
+
+
+def _compare(a, b, data=True):
+    def build(ctx):
+        args = ["--compare", str(a(ctx)), str(b(ctx)), "--out", str(ctx.out)]
+        return args + (["--data", str(ctx.ds())] if data else [])
+    return build
+
+
+def _ckpt(ctx):
+    return ctx.checkpoint
+
+
+add("eval-compare-b-missing", "eval", _compare(_ckpt, lambda ctx: ctx.ws / "none.pt"), needles=("--compare B", "none.pt"))
+add("eval-compare-a-garbage", "eval", _compare(ckpt_file(lambda ctx: b"garbage"), _ckpt), needles=("--compare A", "model.pt", "checkpoint"))
+add("eval-compare-b-other-rig", "eval", _compare(_ckpt, ckpt_file(lambda ctx: {**ctx.checkpoint_dict(), "rig": _other_rig(ctx.checkpoint_dict()["rig"])})),
+    needles=("--compare B", "another rig", "camera front"))
+add("eval-compare-a-other-rig", "eval", _compare(ckpt_file(lambda ctx: {**ctx.checkpoint_dict(), "rig": _other_rig(ctx.checkpoint_dict()["rig"])}), _ckpt),
+    needles=("--compare A", "model.pt", "another rig"))

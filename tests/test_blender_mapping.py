@@ -42,6 +42,7 @@ EXAMPLES = {
     "eucm": dict(fx=14, fy=15, cx=33.2, cy=22.6, alpha=0.6, beta=1.2),
     "double_sphere": dict(fx=12, fy=13, cx=33.2, cy=22.6, xi=-0.2, alpha=0.6),
     "cylindrical": dict(fx=10, fy=12, cx=33.2, cy=22.6),
+    "mei": dict(fx=24, fy=25, cx=33.2, cy=22.6, s=0.1, xi=0.9, k=[-0.2, 0.04, 0.001, -0.0005]),
 }
 
 

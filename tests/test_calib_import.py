@@ -86,6 +86,87 @@ def test_opencv_bad_files_are_one_line_naming_the_field(tmp_path):
         opencv_fisheye_camera(bad)
     with pytest.raises(CalibrationError, match="cannot tell its format"):
         import_calibration(_write(tmp_path / "x.yaml", "a: 1\n"))
+    # issue 34: negative rows/cols, aliases (a billion numbers once expanded), a lost digit
+    bad.write_text((SV / "front.yaml").read_text().replace("   rows: 4\n   cols: 1", "   rows: -2\n   cols: -2", 1))
+    with pytest.raises(CalibrationError, match=r"bad.yaml: dist_coeffs: needs whole 'rows' and 'cols' >= 1, got -2 x -2"):
+        opencv_fisheye_camera(bad)
+    bomb = "%YAML:1.0\n---\na: &a [1, 1, 1, 1, 1, 1, 1, 1, 1]\n" + "".join(
+        f"{c}: &{c} [{', '.join(['*' + q] * 9)}]\n" for q, c in zip("abcdefgh", "bcdefghi")) + "K: *i\nD: [0, 0, 0, 0]\n"
+    with pytest.raises(CalibrationError, match=r"bad.yaml: not valid YAML \(YAML aliases"):
+        opencv_fisheye_camera(_write(bad, bomb))
+    with pytest.raises(CalibrationError, match=r"bad.yaml: camera_matrix \(cx, cy\): \(496.64, 331.2\) is outside the 96x640 image"):
+        opencv_fisheye_camera(_write(bad, (SV / "front.yaml").read_text().replace("data: [ 960, 640 ]", "data: [ 96, 640 ]")))
+    with pytest.raises(CalibrationError, match=r"bad.yaml: resolution: must be whole numbers of pixels in \[1, 100000\], got 9600000.0 x 640"):
+        opencv_fisheye_camera(_write(bad, (SV / "front.yaml").read_text().replace("data: [ 960, 640 ]", "data: [ 9600000, 640 ]")))
+
+
+# ---------------------------------------------------------------- cv2.omnidir (Mei's model): exact, as its own camera
+
+
+def omnidir_reference(p, K, D, xi):
+    """cv2.omnidir.projectPoints written from its published formula (OpenCV ccalib omnidir.cpp;
+    Mei and Rives 2007), independently of geometry.cameras: the unit-sphere point shifted by xi,
+    radial-tangential distortion (k1, k2, p1, p2), then K with its skew."""
+    xs = p / np.linalg.norm(p, axis=-1, keepdims=True)
+    x, y = xs[:, 0] / (xs[:, 2] + xi), xs[:, 1] / (xs[:, 2] + xi)
+    k1, k2, p1, p2 = D
+    r2 = x * x + y * y
+    rad = 1 + k1 * r2 + k2 * r2 * r2
+    xd = x * rad + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
+    yd = y * rad + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
+    return np.stack([K[0, 0] * xd + K[0, 1] * yd + K[0, 2], K[1, 1] * yd + K[1, 2]], -1)
+
+
+OMNI_K = np.array([[385.2, 0.35, 481.7], [0, 383.9, 318.4], [0, 0, 1]])
+OMNI_D = np.array([-0.271, 0.083, 0.0011, -0.0007])
+OMNI_XI = 1.12
+
+
+def _omnidir_file(path):
+    fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE)  # as a cv2.omnidir.calibrate script saves it
+    fs.write("K", OMNI_K)
+    fs.write("D", OMNI_D[None])
+    fs.write("xi", np.array([[OMNI_XI]]))
+    fs.write("image_width", 960)
+    fs.write("image_height", 640)
+    fs.release()
+    return path
+
+
+def test_omnidir_file_is_mei_exactly(tmp_path):
+    """Issue 34: a cv2.omnidir calibration (with xi) was read as cv2.fisheye and reported exact, a
+    pixel landing ~200 px off. It is Mei's model: our `mei` camera, exact against the formula."""
+    imp = import_calibration(_omnidir_file(tmp_path / "omni.yaml"))
+    cam = imp.camera
+    assert cam.model == "mei" and not imp.fitted and imp.residual_px == 0 and imp.describe() == "mei (exact)"
+    assert (cam.width, cam.height, cam.xi, cam.s) == (960, 640, OMNI_XI, 0.35)
+    p = _points_in_front(3000, 100, seed=3)
+    ref = omnidir_reference(p, OMNI_K, OMNI_D, OMNI_XI)
+    uv, valid = cam.project(p)
+    assert valid.all() and np.abs(uv - ref).max() <= 1e-9
+    rays, ok = cam.unproject(ref)  # and back: the rays of cv2's pixels
+    assert ok.all() and np.abs(omnidir_reference(rays, OMNI_K, OMNI_D, OMNI_XI) - ref).max() <= 1e-7
+    # what reading it as cv2.fisheye (xi ignored) gave: far off, so the check above can fail
+    as_fisheye = camera_from_dict({"model": "opencv_fisheye", "width": 960, "height": 640, "fx": 385.2, "fy": 383.9, "cx": 481.7,
+                                   "cy": 318.4, "k": list(OMNI_D)})
+    assert np.abs(as_fisheye.project(p)[0] - ref).max() > 50
+
+
+def test_mei_camera_matches_cv2_omnidir_itself(tmp_path):
+    """Against cv2.omnidir.projectPoints where opencv-contrib is installed (it is not in
+    requirements.txt: run with it on PYTHONPATH to check)."""
+    if not hasattr(cv2, "omnidir"):
+        pytest.skip("cv2.omnidir needs opencv-contrib")
+    cam = import_calibration(_omnidir_file(tmp_path / "omni.yaml")).camera
+    p = _points_in_front(3000, 100, seed=4)
+    ref, _ = cv2.omnidir.projectPoints(p[:, None, :], np.zeros(3), np.zeros(3), OMNI_K, OMNI_XI, OMNI_D[None])
+    uv, valid = cam.project(p)
+    assert valid.all() and np.abs(uv - ref[:, 0]).max() <= 1e-6
+    # and cv2.omnidir's own undistortion of our pixels gives our rays back (it returns x/z, y/z: in front only)
+    uv = uv[p[:, 2] > 0.2 * np.linalg.norm(p, axis=-1)]
+    und = cv2.omnidir.undistortPoints(uv[:, None, :], OMNI_K, OMNI_D[None], np.array([[OMNI_XI]]), np.eye(3))[:, 0]
+    rays, _ = cam.unproject(uv)
+    assert np.abs(und - rays[:, :2] / rays[:, 2:]).max() <= 1e-9
 
 
 def _write(path, text):
@@ -169,9 +250,27 @@ def test_kalibr_camchain(tmp_path):
     t10[0, 3] = -0.11
     np.testing.assert_allclose(cams["cam1"].cam_to_ref, c0.cam_to_ref @ np.linalg.inv(t10), atol=1e-12)
     assert cams["cam2"].camera.model == "double_sphere" and cams["cam2"].camera.xi == -0.2
-    # radtan is not radial: fitted, and the residual says how well
+    # pinhole-radtan is Mei's model with xi = 0 (issue 34: exact, no longer fitted): OpenCV's own
+    # pinhole projection with k1, k2, p1, p2 is the reference
     c3 = cams["cam3"]
-    assert c3.camera.model == "opencv_fisheye" and 0 < c3.residual_px < 5.0
+    assert c3.camera.model == "mei" and c3.residual_px == 0 and not c3.fitted
+    K3 = np.array([[458.6, 0, 367.2], [0, 457.3, 248.4], [0, 0, 1]])
+    p3 = _points_in_front(500, 45)
+    ref3, _ = cv2.projectPoints(p3, np.zeros(3), np.zeros(3), K3, np.array([-0.28, 0.07, 0.0002, -0.0001]))
+    assert np.abs(c3.camera.project(p3)[0] - ref3[:, 0]).max() <= 1e-6
+
+
+def test_kalibr_omni_radtan_is_mei_exactly(tmp_path):
+    """Kalibr's omni + radtan (fitted before issue 34, 6.8 px reported where it reached 39 px) is Mei's
+    model: exact against the formula over the whole field of view."""
+    text = CAMCHAIN.replace("distortion_coeffs: [0.0, 0.0, 0.0, 0.0]\n  distortion_model: none\n  intrinsics: [0.8, 520.0",
+                            "distortion_coeffs: [-0.12, 0.02, 0.0004, -0.0002]\n  distortion_model: radtan\n  intrinsics: [0.8, 520.0")
+    c1 = kalibr_cameras(_write(tmp_path / "camchain.yaml", text))["cam1"]
+    assert c1.camera.model == "mei" and c1.residual_px == 0 and not c1.fitted
+    K = np.array([[520.0, 0, 320.5], [0, 521.0, 240.5], [0, 0, 1]])
+    p = _points_in_front(2000, 110, seed=5)
+    uv, valid = c1.camera.project(p)
+    assert valid.all() and np.abs(uv - omnidir_reference(p, K, [-0.12, 0.02, 0.0004, -0.0002], 0.8)).max() <= 1e-9
 
 
 def test_kalibr_pinhole_equi_with_zero_coefficients_is_equidistant(tmp_path):
@@ -188,6 +287,13 @@ def test_kalibr_bad_field(tmp_path):
         kalibr_cameras(path)
     path = _write(tmp_path / "camchain.yaml", CAMCHAIN.replace("resolution: [640, 480]\n  rostopic", "resolution: [640]\n  rostopic"))
     with pytest.raises(CalibrationError, match=r"cam0: resolution: must have 2 numbers, has 1"):
+        kalibr_cameras(path)
+    # issue 34: a T_cam_imu with determinant -1 is a reflection (the camera would look backwards)
+    path = _write(tmp_path / "camchain.yaml", CAMCHAIN.replace("- [0.0, 0.0, -1.0, 0.10]", "- [0.0, 0.0, 1.0, 0.10]", 1))
+    with pytest.raises(CalibrationError, match=r"cam0: T_cam_imu: a reflection \(determinant -1\), not a rotation"):
+        kalibr_cameras(path)
+    path = _write(tmp_path / "camchain.yaml", CAMCHAIN.replace("[280.1, 281.2, 321.4, 241.7]", "[280.1, 281.2, 3214.0, 241.7]"))
+    with pytest.raises(CalibrationError, match=r"cam0: intrinsics \(cx, cy\): \(3214, 241.7\) is outside the 640x480 image"):
         kalibr_cameras(path)
 
 
@@ -215,16 +321,23 @@ def test_ocamcalib_fitted_with_residual(tmp_path):
     imp = ocamcalib_camera(path)
     cam = imp.camera
     assert (cam.width, cam.height, cam.cx, cam.cy, cam.fx) == (1280, 960, 639.7, 481.2, 250.0)
-    assert imp.residual_px < 0.2  # a polynomial in rho fitted by one in theta: close, not exact (measured 0.11 px)
+    # a polynomial in rho fitted by one in theta: close, not exact; the residual covers the whole field of
+    # view, here the whole image (136 degrees from the axis in the corners; measured 2.99 px, 0.11 px
+    # within 100 degrees, which is all that was reported before issue 34)
+    assert imp.fitted and 1.0 < imp.residual_px < 5.0 and imp.describe().startswith("opencv_fisheye (fitted, residual")
+    dense = np.stack(np.meshgrid(np.arange(0, 1280, 3.0), np.arange(0, 960, 3.0)), -1).reshape(-1, 2)
+    rays = m.cam2world(dense)
+    assert np.degrees(np.arccos(rays[:, 2].min())) > 130
+    back, ok = cam.project(rays)
+    err = np.linalg.norm(back - dense, axis=-1)
+    assert ok.all() and imp.residual_px - 1e-9 <= err.max() <= 1.02 * imp.residual_px  # the stated residual is the true worst
+    near = rays[:, 2] > math.cos(math.radians(100))
+    assert err[~near].max() > 2 * err[near].max()  # the worst is beyond 100 degrees, where nothing was measured before
     # the centre is (row, column): the ray of the centre pixel looks straight forward
     np.testing.assert_allclose(m.cam2world(np.array([[639.7, 481.2]])), [[0, 0, 1]], atol=1e-12)
     # a pixel to the right of the centre sees a ray to the right (x > 0), one below sees y > 0
     r = m.cam2world(np.array([[800.0, 481.2], [639.7, 700.0]]))
     assert r[0, 0] > 0 and abs(r[0, 1]) < 1e-12 and r[1, 1] > 0
-    uv = np.array([[900.0, 300.0], [400.0, 700.0]])  # inside 100 degrees of the axis, where the residual is measured
-    assert (m.cam2world(uv)[:, 2] > math.cos(math.radians(100))).all()
-    back, _ = cam.project(m.cam2world(uv))
-    assert np.abs(back - uv).max() <= imp.residual_px + 1e-9
     # the affine part (c != 1) is not radial: the residual shows it
     skew = _write(tmp_path / "skew.txt", _ocam_text(pol, [300.0], [481.2, 639.7], [1.02, 0.001, 0.0005], (960, 1280)))
     assert ocamcalib_camera(skew).residual_px > 1.0
@@ -235,6 +348,20 @@ def test_ocamcalib_bad_field(tmp_path):
                   .replace("3 -2.5", "4 -2.5"))
     with pytest.raises(CalibrationError, match=r"calib_results.txt: pol: the length 4 does not match the 3 coefficients"):
         read_ocamcalib(path)
+    # issue 34: a centre outside the image (a lost decimal point) was fitted from no pixel and reported exact
+    path = _write(tmp_path / "calib_results.txt", _ocam_text([-250.0, 0, 1e-3], [300.0], [4812, 6397], [1.0, 0.0, 0.0], (960, 1280)))
+    with pytest.raises(CalibrationError, match=r"calib_results.txt: center \(row, column\): \(6397, 4812\) is outside the 1280x960 image"):
+        ocamcalib_camera(path)
+    # an image size with two zeros too many is refused; a big one is fitted from a bounded sample
+    path = _write(tmp_path / "calib_results.txt", _ocam_text([-250.0, 0, 1e-3], [300.0], [481.2, 639.7], [1.0, 0.0, 0.0], (96000, 128000)))
+    with pytest.raises(CalibrationError, match=r"calib_results.txt: image size: must be whole numbers of pixels in \[1, 100000\]"):
+        ocamcalib_camera(path)
+    import time
+
+    path = _write(tmp_path / "calib_results.txt", _ocam_text([-2500.0, 0, 1e-4], [300.0], [4812, 6397], [1.0, 0.0, 0.0], (9600, 12800)))
+    t0 = time.perf_counter()
+    imp = ocamcalib_camera(path)
+    assert imp.camera.width == 12800 and time.perf_counter() - t0 < 10
 
 
 # ---------------------------------------------------------------- rigs of calibration files

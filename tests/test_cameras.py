@@ -27,6 +27,7 @@ CAMERAS = {
     "eucm": dict(BASE, model="eucm", alpha=0.62, beta=1.2),
     "double_sphere": dict(BASE, model="double_sphere", xi=-0.2, alpha=0.6),
     "cylindrical": dict(BASE, model="cylindrical"),
+    "mei": dict(BASE, model="mei", fx=290.0, fy=301.0, s=0.4, xi=0.95, k=[-0.25, 0.06, 0.0005, -0.0003]),
 }
 
 # more corners of the parameter spaces, for the domain tests
@@ -37,6 +38,9 @@ VARIANTS.update({
     "double_sphere_xi_pos": dict(BASE, model="double_sphere", xi=0.4, alpha=0.65),
     "double_sphere_low_alpha": dict(BASE, model="double_sphere", xi=0.3, alpha=0.3),
     "kb_theta_folding": dict(BASE, model="kb_theta", p=[1.0, 0.0, -0.08]),
+    "mei_xi_above_1": dict(BASE, model="mei", fx=330.0, fy=340.0, s=0.0, xi=1.4, k=[-0.1, 0.01, 0.0, 0.0]),
+    "mei_pinhole_radtan": dict(BASE, model="mei", fx=300.0, fy=310.0, s=0.0, xi=0.0, k=[-0.28, 0.07, 0.0002, -0.0001]),
+    "mei_folding": dict(BASE, model="mei", fx=200.0, fy=210.0, s=0.0, xi=0.9, k=[-0.2, 0.0, 0.001, 0.0]),
 })
 
 
@@ -51,7 +55,7 @@ def sphere_points(n=100_000, seed=0):
 
 
 def test_every_design_model_is_here():
-    assert set(MODELS) == set(CAMERAS) and len(MODELS) == 11
+    assert set(MODELS) == set(CAMERAS) and len(MODELS) == 12
 
 
 @pytest.mark.parametrize("name", VARIANTS)
@@ -119,6 +123,8 @@ def _same(a, b, pts):
         (dict(model="eucm", alpha=0.7, beta=1.0), dict(model="ucm", alpha=0.7)),
         (dict(model="opencv_fisheye", k=[0, 0, 0, 0]), dict(model="equidistant")),
         (dict(model="kb_theta", p=[1.0]), dict(model="equidistant")),
+        (dict(model="mei", xi=0.0, s=0.0, k=[0, 0, 0, 0]), dict(model="pinhole")),
+        (dict(model="mei", xi=1.0, s=0.0, k=[0, 0, 0, 0], fx=2 * 145.0, fy=2 * 151.0), dict(model="ucm", alpha=0.5)),
     ],
 )
 def test_identities(a, b):

@@ -78,3 +78,41 @@ def test_export_woodscape_reads_back(tiny_dataset, tmp_path):
             assert np.abs(theirs[ok2] - ours[ok2]).max() <= 1e-3
     assert vehicles_seen > 0
     assert 0 < max(summary["max_fit_residual_px"].values()) < 0.05  # opencv_fisheye -> radial_poly at 64x40
+
+
+def test_export_replaces_an_earlier_export_and_a_bad_frame_leaves_it_whole(tiny_dataset, tmp_path):
+    """Issue 34: exporting into an earlier, larger export left its stale frames beside the new ones;
+    a missing camera PNG exited 1 with a partial export; a 0-byte one was copied and exit 0."""
+    import json as _json
+    import shutil
+
+    from test_robustness import mini_frames_copy, run_in_process
+
+    small = mini_frames_copy(tiny_dataset, tmp_path / "small", frames=1)
+    out = tmp_path / "ws"
+    (out / "rgb_images").mkdir(parents=True)
+    (out / "rgb_images" / "00099_FV.png").write_bytes(b"stale")  # an earlier, larger export
+    (out / "export.json").write_text(_json.dumps({"frames": {"00099": {}}}))
+    code, err = run_in_process("export-woodscape", [str(small), str(out)])
+    assert code == 0, err
+    assert sorted(p.name for p in (out / "rgb_images").iterdir()) == ["00000_FV.png", "00000_MVL.png", "00000_MVR.png", "00000_RV.png"]
+    assert list(_json.loads((out / "export.json").read_text())["frames"]) == ["00000"]
+    before = {p: p.read_bytes() for p in out.rglob("*") if p.is_file()}
+    frame = small / _json.loads((small / "manifest.jsonl").read_text().splitlines()[0])["dir"]
+    for damage, needle in (("missing", "missing"), ("empty", "0 bytes")):
+        png = frame / "cam_rear.png"
+        whole = png.read_bytes()
+        png.unlink() if damage == "missing" else png.write_bytes(b"")
+        code, err = run_in_process("export-woodscape", [str(small), str(out)])
+        lines = [ln for ln in err.splitlines() if ln.strip()]
+        assert code == 2 and len(lines) == 1 and "cam_rear.png" in lines[0] and needle in lines[0], err
+        assert {p: p.read_bytes() for p in out.rglob("*") if p.is_file()} == before  # nothing half written
+        assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []  # no temp folder left
+        png.write_bytes(whole)
+    # a folder of other files is not an export: refused, left alone
+    other = tmp_path / "mine"
+    other.mkdir()
+    (other / "notes.txt").write_text("mine")
+    code, err = run_in_process("export-woodscape", [str(small), str(other)])
+    assert code == 2 and "export.json" in err and (other / "notes.txt").read_text() == "mine"
+    shutil.rmtree(small)

@@ -42,8 +42,23 @@ def test_predict_equals_eval_on_rendered_frames_and_runs_on_real_images(tiny_dat
         np.testing.assert_array_equal(ours["occlusion_logit"], theirs["occlusion_logit"])
         assert (tmp_path / "pred" / f"{ref.dir.name}.png").stat().st_size > 10_000
 
-    # real images through an imported rig (cv2.fisheye cameras, 960x640, another mount): runs, writes both files
-    _run("predict.py", "--checkpoint", ckpt, "--frames", SV, "--rig", SV / "rig.yaml", "--out", tmp_path / "real")
+    # one rendered frame folder is one frame (issue 34: its labels/ folder was taken for a frame)
+    one = _run("predict.py", "--checkpoint", ckpt, "--frames", refs[0].dir, "--out", tmp_path / "one", "--threads", "1")
+    assert sorted(q.name for q in (tmp_path / "one").iterdir()) == [f"{refs[0].dir.name}.npz", f"{refs[0].dir.name}.png"]
+    ours = np.load(tmp_path / "one" / f"{refs[0].dir.name}.npz")
+    theirs = np.load(tmp_path / "eval" / "predictions" / f"{refs[0].scene}_{refs[0].frame:06d}.npz")
+    np.testing.assert_array_equal(ours["semantic"], theirs["semantic"])
+    assert "front: opencv_fisheye (exact, given inline)" in one.stdout  # what each camera became, once
+    assert one.stdout.count("front:") == 1
+
+    # real images through an imported rig (cv2.fisheye cameras, 960x640, another mount): runs, writes both
+    # files; its cameras are named front, back, left, right: --cameras puts them in the model's order
+    r = subprocess.run([sys.executable, "predict.py", "--checkpoint", ckpt, "--frames", SV, "--rig", SV / "rig.yaml",
+                        "--out", tmp_path / "real"], cwd=ROOT, capture_output=True, text=True, timeout=600)
+    assert r.returncode == 2 and "--rig" in r.stderr and "rig.yaml" in r.stderr and "--cameras" in r.stderr, r.stderr
+    r = _run("predict.py", "--checkpoint", ckpt, "--frames", SV, "--rig", SV / "rig.yaml", "--out", tmp_path / "real",
+             "--cameras", "front,left,back,right")
+    assert "back: opencv_fisheye (exact) from back.yaml" in r.stdout
     p = np.load(tmp_path / "real" / "surround_view.npz")
     assert p["semantic"].shape == p["visibility"].shape and p["semantic"].min() >= 1
     assert ((p["visibility"] >= 0) & (p["visibility"] <= 1)).all()
@@ -71,3 +86,43 @@ def test_images_of_another_size_bring_their_camera():
         np.testing.assert_array_equal(half[n].cam_to_ego, rig[n].cam_to_ego)
     same = predict.rig_of_images(rig, {n: np.zeros((640, 960, 3), np.uint8) for n in rig.names})
     assert same.to_dict() == rig.to_dict()
+
+
+def test_cameras_are_matched_by_name_for_a_pooling_with_per_camera_parameters(tiny_dataset, tmp_path):
+    """Issue 34: the README listed the cameras front, rear, left, right, training used front, left,
+    rear, right, and predict matched them by position: with weighted_sum pooling (a learned W_i per
+    camera, the paper's eq. 2) rear and left would swap silently. Now they are matched by name."""
+    import torch
+
+    import predict
+    from dataset_tools.format.reader import DatasetIndex
+    from dataset_tools.stitch import read_images
+    from geometry.rig import Rig
+    from model.checkpoint import build_model
+    from model.config import load_config
+    from test_train import label_grid, write_config
+
+    index = DatasetIndex(tiny_dataset)
+    cfg = load_config(write_config(tmp_path / "c.yaml", tiny_dataset, model={"pooling": "weighted_sum"},
+                                   data={"grid": label_grid(tiny_dataset)}))
+    rig = index.rig
+    assert rig.names == ["front", "left", "rear", "right"]
+    torch.manual_seed(0)
+    model = build_model(cfg, rig)
+    with torch.no_grad():  # make each camera's weights its own
+        for i in range(len(rig)):
+            model.pool.weight[i].mul_(0.25 + 0.5 * i)
+    images = read_images(index.frames("train")[0].dir, rig.names)
+    want = predict.RigModel(model, cfg, rig.to_dict(), rig)(images).occlusion_logit
+    listed = Rig([rig[n] for n in ("front", "rear", "left", "right")], rig.name)  # a rig file in the README's old order
+    got = predict.RigModel(model, cfg, rig.to_dict(), listed)(images).occlusion_logit
+    torch.testing.assert_close(got, want, rtol=0, atol=0)
+    # matching by position (the old behaviour, now only what an explicit --cameras asks for) differs
+    swapped = predict.RigModel(model, cfg, rig.to_dict(), listed, cameras=["front", "rear", "left", "right"])(images).occlusion_logit
+    assert (swapped - want).abs().max() > 1e-3
+    # a rig of 3 cameras is refused naming the option and file
+    import pytest
+
+    three = Rig([rig[n] for n in ("front", "left", "rear")], "mine")
+    with pytest.raises(predict.PredictError, match=r"--rig my.yaml: 3 cameras \(front, left, rear\), the model was trained with 4"):
+        predict.RigModel(model, cfg, rig.to_dict(), three, "--rig my.yaml")

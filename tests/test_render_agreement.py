@@ -43,6 +43,7 @@ OSL_CAMERAS = [
     dict(model="eucm", fx=14, fy=15, cx=33.2, cy=22.6, alpha=0.6, beta=1.2),
     dict(model="double_sphere", fx=12, fy=13, cx=33.2, cy=22.6, xi=-0.2, alpha=0.6),
     dict(model="cylindrical", fx=10, fy=12, cx=33.2, cy=22.6),
+    dict(model="mei", fx=24, fy=25, cx=33.2, cy=22.6, s=0.1, xi=0.9, k=[-0.2, 0.04, 0.001, -0.0005]),
 ]
 # Radially symmetric, square pixels: what the lens polynomial can render.
 POLY_CAMERAS = [

@@ -25,7 +25,7 @@ from dataset_tools.__main__ import COMMANDS as DATASET_COMMANDS
 from robust_cases import CASES
 
 ROOT = Path(__file__).resolve().parents[1]
-COMMANDS = {name: module for name, (module, _) in DATASET_COMMANDS.items()} | {"train": "train", "eval": "eval"}
+COMMANDS = {name: module for name, (module, _) in DATASET_COMMANDS.items()} | {"train": "train", "eval": "eval", "predict": "predict"}
 WRITES_DATASET = {"fuse", "index", "stats", "inspect", "contact_sheet"}  # may write into the data set they are given
 TEMP = re.compile(r"^\..+\.tmp(\.[A-Za-z0-9]+)?$")
 PROGRESS = re.compile(r"\d+%\||\d+/\d+ \[")  # a tqdm bar line
@@ -61,22 +61,27 @@ def merge(base: dict, over: dict) -> dict:
     return out
 
 
-@pytest.fixture(scope="session")
-def mini_dataset(tiny_dataset, tmp_path_factory):
-    """Two fused frames of the tiny render (one scene), with their own manifest and index."""
+def mini_frames_copy(tiny_dataset: Path, out: Path, frames: int = 2) -> Path:
+    """A data set at `out` of the first `frames` fused frames of the tiny render's first scene, with
+    its own manifest and index."""
     from dataset_tools.format.index import build_index, write_index
 
-    out = tmp_path_factory.mktemp("mini") / "ds"
-    out.mkdir()
+    out.mkdir(parents=True)
     lines = (tiny_dataset / "manifest.jsonl").read_text().splitlines()
     first = json.loads(lines[0])["scene"]
-    keep = [line for line in lines if json.loads(line)["scene"] == first][:2]
+    keep = [line for line in lines if json.loads(line)["scene"] == first][:frames]
     for line in keep:
         d = json.loads(line)["dir"]
         shutil.copytree(tiny_dataset / d, out / d)
     (out / "manifest.jsonl").write_text("\n".join(keep) + "\n")
     write_index(out, build_index(out))
     return out
+
+
+@pytest.fixture(scope="session")
+def mini_dataset(tiny_dataset, tmp_path_factory):
+    """Two fused frames of the tiny render (one scene), with their own manifest and index."""
+    return mini_frames_copy(tiny_dataset, tmp_path_factory.mktemp("mini") / "ds")
 
 
 @pytest.fixture(scope="session")

@@ -48,6 +48,58 @@ def test_every_drawn_recipe_builds_a_layout_with_traffic_and_an_ego_route():
             assert all(abs(v) < 1e5 for v in ego_pose(lay, r, t)), r["name"]
 
 
+def build_sampled(count: int, seed: int, families=None, frames: int = 4) -> tuple[int, list[str]]:
+    """Build layout, traffic and ego route of `count` sampled recipes (no rendering) -> (built,
+    failures as 'name family: error')."""
+    fails = []
+    for r in sample_recipes(_spec(count=count, seed=seed, frames=frames, **({"families": families} if families else {}))):
+        try:
+            lay = build_layout(r, scene_rng(r["seed"], 1))
+            place_traffic(lay, r, scene_rng(r["traffic"]["seed"], 3))
+            assert all(abs(v) < 1e5 for t in (0.0, 0.5) for v in ego_pose(lay, r, t))
+        except Exception as exc:  # noqa: BLE001 - every failure is a finding
+            fails.append(f"{r['name']} {r['family']}: {type(exc).__name__}: {exc}")
+    return count, fails
+
+
+def test_many_sampled_recipes_of_every_family_build():
+    """Issue 34: about 1 in 400 sampled urban blocks (a short block of a wide street with a bridge)
+    failed in the layout builder (`min() arg is an empty sequence`): invisible in 30 recipes, certain
+    in thousands. The sampler now draws only what builds. Here 400 recipes of every family and 300
+    urban blocks (the failing family; about 30 s on a loaded 2-core machine); SAMPLED_LAYOUTS=5000 for the issue's
+    5,000 (measured 2026-11-25: 5,000 of every family and 1,666 urban blocks, all built, in 333 s at nice 19 on
+    the shared 2-core machine)."""
+    import os
+    import time
+
+    n = int(os.environ.get("SAMPLED_LAYOUTS", "400"))
+    t0 = time.perf_counter()
+    _, fails = build_sampled(n, 880088)
+    _, fails_ub = build_sampled(max(300, n // 3), 34, families=["urban_block"])
+    print(f"\n{n} + {max(300, n // 3)} sampled layouts built in {time.perf_counter() - t0:.1f} s")
+    assert not fails + fails_ub, fails + fails_ub
+
+
+def test_a_block_with_no_room_for_a_bridge_is_drawn_without_one():
+    """The issue's scene: an urban block with 3 lanes each way, a 55 m block, 4.2 m pavements and a
+    bridge. Built as written it fails with one clear line; the sampler draws no bridge there."""
+    from dataset_tools.generation.recipe import bridge_stations
+    from dataset_tools.generation.sampler import buildable
+
+    drawn = sample_recipes(_spec(count=1500, seed=880088, frames=4, families=["urban_block"]))
+    no_room = [d for d in drawn if not bridge_stations(d)]  # about 1 in 100 (those drawn with a bridge failed before)
+    assert 3 <= len(no_room) <= 60 and all(d["roadside"]["bridges"] == 0 for d in no_room)
+    d = no_room[0]
+    d["roadside"]["bridges"] = 1  # as it could be drawn
+    r = validate_recipe(d, "issue34")
+    assert bridge_stations(r) == []
+    with pytest.raises(ValueError, match="roadside.bridges: 1, but no overpass fits between the junctions"):
+        build_layout(r, scene_rng(r["seed"], 1))
+    fixed = buildable(d, "issue34")
+    assert fixed["roadside"]["bridges"] == 0 and {**fixed, "roadside": r["roadside"]} == r
+    build_layout(fixed, scene_rng(fixed["seed"], 1))
+
+
 def _config(tmp_path, scenes, **top):
     path = tmp_path / "cfg.yaml"
     path.write_text(yaml.safe_dump({"rig": "configs/rigs/default.yaml", "scenes": scenes, **top}))
@@ -88,3 +140,38 @@ def test_heldout_seeds_never_overlap_training_and_held_out_families_stay_out(tmp
     for scenes, hold, words in refused:
         with pytest.raises(ConfigError, match=words):
             load_config(_config(tmp_path, scenes, hold_out=hold))
+
+
+def test_a_scene_that_fails_to_build_does_not_stop_the_others():
+    """Issue 34: `generate` stopped the whole data set at the first scene whose layout failed. The
+    driver's pool slots now give that scene up (its error names the scene and its recipe), finish
+    every other scene, and the run exits 1 (generation.driver.run); the same command redoes only
+    what is missing. Fake workers here: the logic, without Blender."""
+    import queue
+    from types import SimpleNamespace
+
+    from dataset_tools.generation.driver import WorkerFailed, _drive
+
+    started = []
+
+    class Fake:
+        def __init__(self):
+            started.append(self)
+
+        def run(self, task):
+            if task.scene == "bad":
+                raise WorkerFailed("bad (recipe DATA/recipes/bad.yaml): ValueError: roadside.bridges: 1, but no overpass fits")
+            for f in task.frames:
+                yield {"frame": f}
+
+        def close(self):
+            pass
+
+    q = queue.Queue()
+    for scene, frames in [("a", [0, 1]), ("bad", [0]), ("bad", [1]), ("b", [0, 1, 2])]:
+        q.put(SimpleNamespace(scene=scene, frames=frames))
+    got, errors, failed = [], [], set()
+    _drive(q, Fake, lambda task, msg: got.append((task.scene, msg["frame"])), errors, True, failed)
+    assert got == [("a", 0), ("a", 1), ("b", 0), ("b", 1), ("b", 2)]
+    assert failed == {"bad"} and len(errors) == 1 and "bad (recipe DATA/recipes/bad.yaml)" in str(errors[0])
+    assert len(started) == 2  # a fresh worker after the failed one (it ends after reporting)

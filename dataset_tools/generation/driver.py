@@ -48,7 +48,8 @@ def write_recipes(cfg: dict, out: Path) -> None:
 
 
 class WorkerFailed(Exception):
-    """The worker reported an error for its task (deterministic: the run stops)."""
+    """The worker reported an error for its task (deterministic: that scene is given up, the others
+    are finished, and the run exits 1; running it again redoes only what is missing)."""
 
     def __init__(self, message: str, trace: str = ""):
         super().__init__(message, trace)
@@ -90,7 +91,8 @@ class WorkerProcess:
             elif msg["event"] == "task_done":
                 return
             elif msg["event"] == "error":
-                raise WorkerFailed(f"{task.scene}: {msg['message']}", msg.get("trace", ""))
+                recipe = Path(task.out) / RECIPES_DIR / f"{task.scene}.yaml"
+                raise WorkerFailed(f"{task.scene} (recipe {recipe}): {msg['message']}", msg.get("trace", ""))
         raise WorkerLost("worker exited unexpectedly")
 
     def close(self) -> None:
@@ -128,17 +130,23 @@ def render_tasks(cfg: dict, jobs, out: Path, workers: int, threads: int) -> list
 MAX_LOSSES = 3  # a task whose worker is lost this many times stops the run (a frame that kills Blender)
 
 
-def _drive(q: queue.Queue, new_worker, on_frame, errors: list, reschedule: bool) -> None:
+def _drive(q: queue.Queue, new_worker, on_frame, errors: list, reschedule: bool, failed: set | None = None) -> None:
     """One pool slot: take tasks from `q` until it is empty, feeding `on_frame` each finished frame.
     A lost worker's unfinished frames go back on the queue (when `reschedule`) and a new worker
-    takes the slot; frames already reported are not redone."""
+    takes the slot; frames already reported are not redone. A scene that fails (the worker reports
+    an error, or is lost MAX_LOSSES times) goes into `errors` and `failed`; its other tasks are
+    skipped and the slot goes on with the other scenes (issue 34: one scene that cannot be built
+    no longer stops the data set)."""
+    failed = set() if failed is None else failed
     worker = new_worker()
     try:
-        while not errors:
+        while True:
             try:
                 task = q.get_nowait()
             except queue.Empty:
                 break
+            if task.scene in failed:
+                continue
             done: set[int] = set()
             try:
                 for msg in worker.run(task):
@@ -146,11 +154,17 @@ def _drive(q: queue.Queue, new_worker, on_frame, errors: list, reschedule: bool)
                     done.add(msg["frame"])
             except WorkerFailed as exc:
                 errors.append(exc)
+                failed.add(task.scene)
+                worker.close()  # it ends after reporting the error
+                worker = new_worker()
             except WorkerLost as exc:
                 retry = task.retry([f for f in task.frames if f not in done])
                 if not reschedule or retry.losses >= MAX_LOSSES:
                     errors.append(f"{task.scene}: {exc}")
-                    break
+                    failed.add(task.scene)
+                    worker.close()
+                    worker = new_worker()
+                    continue
                 print(f"generate: {task.scene}: {exc}; {len(retry.frames)} frame(s) rescheduled", file=sys.stderr)
                 for f in retry.frames:  # the lost worker's half-written temp files (its frames are nobody else's)
                     clean_stale_temps(Path(task.out) / frame_dir_name(task.scene, f))
@@ -197,7 +211,8 @@ def run(cfg: dict, out: Path, shard=(0, 1), workers: int | None = None, progress
     try:
         if todo:
             with ThreadPoolExecutor(workers) as threads_pool:
-                for f in [threads_pool.submit(_drive, q, new_worker, on_frame, errors, pool.retries_lost_workers)
+                failed: set = set()
+                for f in [threads_pool.submit(_drive, q, new_worker, on_frame, errors, pool.retries_lost_workers, failed)
                           for _ in range(workers)]:
                     f.result()
     finally:
@@ -209,6 +224,8 @@ def run(cfg: dict, out: Path, shard=(0, 1), workers: int | None = None, progress
                     log.write(e.trace + "\n")
                 e = f"{e.message} (trace in {out / 'worker_errors.log'})"
             print(f"generate: {e}", file=sys.stderr)
+        print(f"generate: {len(errors)} scene(s) failed, the others are rendered; fix them (or drop them) and run the same "
+              "command again to finish", file=sys.stderr)
         return EXIT_PROBLEMS
     from ..qa.contact_sheet import make_sheets
 

@@ -132,3 +132,40 @@ def validate_recipe(d, source: str = "recipe", overrides: dict | None = None, ov
 
 def load_recipe(path, overrides: dict | None = None, overrides_at: str | None = None) -> dict:
     return validate_recipe(read_yaml(path), str(path), overrides, overrides_at)
+
+
+# ---------------------------------------------------------------- where a recipe's roads go (what the layout builder and the sampler share)
+
+
+def route_length(recipe) -> float:
+    """Road length needed so the ego's whole drive stays 120 m clear of the ends."""
+    travel = recipe["ego"]["speed_kmh"] / 3.6 * recipe["frames"]["count"] / recipe["frames"]["rate_hz"]
+    return max(recipe["layout"]["length"], travel + 2 * abs(recipe["ego"]["start"]) + 240.0)
+
+
+def junction_crossings(recipe) -> list[float]:
+    """x (m, along the main road) of each cross street of a junction family (none for the others)."""
+    fam = recipe["family"]
+    if fam in ("intersection", "t_junction"):
+        return [25.0]
+    if fam == "urban_block":
+        L, b = route_length(recipe), recipe["layout"]["block_length"]
+        return [b / 2 + k * b for k in range(-int(L / b) - 1, int(L / b) + 1) if abs(b / 2 + k * b) < L / 2 - 40]
+    return []
+
+
+def junction_zone(recipe) -> float:
+    """Half the length of main road a junction takes (its arms, pavements and crossings)."""
+    n, w = recipe["layout"]["lanes_per_direction"], recipe["layout"]["lane_width"]
+    return 0.2 + n * w + 0.5 + recipe["roadside"]["sidewalk_width"] + 6.0
+
+
+def bridge_stations(recipe) -> list[float]:
+    """Where along the main road of a junction family an overpass fits (10 m clear of every
+    junction): empty where none does, as on a short block of a wide street; such a recipe's
+    `roadside.bridges` cannot be built (the sampler draws none there)."""
+    import numpy as np
+
+    L, zone = route_length(recipe), junction_zone(recipe)
+    skip = [(x + L / 2 - zone, x + L / 2 + zone) for x in junction_crossings(recipe)]
+    return [float(s) for s in np.linspace(20, L - 20, 80) if all(not (a - 10 < s < b + 10) for a, b in skip)]

@@ -19,7 +19,7 @@ import numpy as np
 from common.errors import ConfigError
 from common.schema import Bool, List, Name, Num, Section, Str
 
-from .recipe import FAMILIES, VEHICLE_KINDS, WEATHER_PRESETS, validate_recipe
+from .recipe import FAMILIES, VEHICLE_KINDS, WEATHER_PRESETS, bridge_stations, junction_crossings, validate_recipe
 
 STREAM = 0x5CE7E  # keeps these streams apart from every other use of the same seed
 MAX_SEED = 2**31 - 1
@@ -137,8 +137,20 @@ def sample_recipes(spec: dict, source: str = "sample", families=None, weather=No
         d["name"] = f"{prefix}_{k:04d}"
         if spec.get("rig_jitter"):
             d["rig_jitter"] = float(spec["rig_jitter"])
-        out.append(validate_recipe(d, f"{source}[{k}]"))
+        out.append(buildable(d, f"{source}[{k}]"))
     return out
+
+
+def buildable(d: dict, source: str) -> dict:
+    """The validated recipe, made one whose layout builds: overpasses are drawn only where one fits
+    (a short block of a wide street has no room between its junctions: issue 34, `min() arg is an
+    empty sequence` in the layout builder). Draws nothing from the scene's stream, so the other
+    recipes of a block stay as they were."""
+    r = validate_recipe(d, source)
+    if r["roadside"]["bridges"] and junction_crossings(r) and not bridge_stations(r):
+        d = {**d, "roadside": {**d["roadside"], "bridges": 0}}
+        r = validate_recipe(d, source)
+    return r
 
 
 def relit_recipes(spec: dict, bases: list[dict], source: str = "sample", weather=None) -> list[dict]:
@@ -163,5 +175,5 @@ def relit_recipes(spec: dict, bases: list[dict], source: str = "sample", weather
         d["ego"]["lane"] = int(rng.integers(0, lanes))
         if spec.get("rig_jitter"):
             d["rig_jitter"] = float(spec["rig_jitter"])
-        out.append(validate_recipe(d, f"{source}[{k}]"))
+        out.append(buildable(d, f"{source}[{k}]"))
     return out
