@@ -78,18 +78,19 @@ def set_cycles(scene, **settings) -> None:
 @contextmanager
 def label_mode(scene):
     """Settings for renders whose only use is the label passes (written at the first hit): one
-    sample at the pixel centre, no denoising, no bounces, no lights, no sky (the two top-down
+    sample at the pixel centre, no denoising, no bounces (through glass neither), no lights, no sky (the two top-down
     renders take a third of the time). Everything is restored on exit, and nothing leaves Cycles'
     scene on the way: objects hidden and shown again come back in another order, and later
     frames' noise would then depend on what was rendered before. The sky goes through the view
     layer's `use_sky`: changing the world itself makes Cycles recompute the Nishita sky (0.15 s)."""
     c = scene.cycles
     view_layer = scene.view_layers[0]
-    saved = {k: getattr(c, k) for k in ("samples", "use_denoising", "max_bounces")}
+    saved = {k: getattr(c, k) for k in ("samples", "use_denoising", "max_bounces", "transparent_max_bounces")}
     lights = [o.data for o in scene.objects if o.type == "LIGHT"]  # zero strength: left out
     energies = [light.energy for light in lights]
     use_sky = view_layer.use_sky
-    set_cycles(scene, samples=1, use_denoising=False, max_bounces=0)
+    # no path goes on through see-through glass either: the passes already stopped at it
+    set_cycles(scene, samples=1, use_denoising=False, max_bounces=0, transparent_max_bounces=0)
     for light in lights:
         light.energy = 0.0
     view_layer.use_sky = False
