@@ -69,11 +69,11 @@ def test_chromatic_aberration_moves_red_and_blue_never_green(front):
 def test_noise_is_seeded_and_of_the_drawn_size(front):
     _, theta, pp = front
     img = np.full(theta.shape + (3,), 128, np.uint8)
-    p = {"shot_gain": 0.004, "read_sd": 0.006, "noise_seed": 3}
+    p = {"shot_gain": 0.002, "read_sd": 0.003, "noise_seed": 3}
     a, b = sensor.apply(img, p, theta, pp), sensor.apply(img, p, theta, pp)
     assert np.array_equal(a, b)
     sd = a.astype(float).std()
-    assert 1.0 < sd < 12.0
+    assert 0.5 < sd < 8.0
     assert not np.array_equal(a, sensor.apply(img, dict(p, noise_seed=4), theta, pp))
 
 
@@ -84,9 +84,9 @@ def test_exposure_white_balance_and_jpeg(front):
     brighter = sensor.apply(img, {"exposure_ev": 0.5}, theta, pp)
     darker = sensor.apply(img, {"exposure_ev": -0.5}, theta, pp)
     assert (brighter > darker + 10).all()
-    night = np.full(theta.shape + (3,), 10, np.uint8)  # auto-exposure lifts a dark frame, at most 8x
-    assert sensor.auto_exposure(sensor._to_linear(night / 255.0)) == 8.0 and 0.5 <= gain <= 8.0
-    assert sensor.apply(night, {"exposure_ev": 0.0}, theta, pp).mean() > 3 * night.mean()
+    night = np.full(theta.shape + (3,), 10, np.uint8)  # auto-exposure lifts a dark frame, at most 4x
+    assert sensor.auto_exposure(sensor._to_linear(night / 255.0)) == 4.0 and 0.5 <= gain <= 4.0
+    assert sensor.apply(night, {"exposure_ev": 0.0}, theta, pp).mean() > 2.5 * night.mean()
     warm = sensor.apply(img, {"wb_gains": [1.1, 1.0, 0.9]}, theta, pp)
     assert warm[0, 0, 0] > warm[0, 0, 1] > warm[0, 0, 2]
     ramp = np.tile(np.linspace(0, 255, theta.shape[1]).astype(np.uint8)[None, :, None], (theta.shape[0], 1, 3))

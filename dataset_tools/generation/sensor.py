@@ -6,12 +6,12 @@ drawn once per frame and camera from the frame's seed (so a frame renders to the
 
 | effect | what | distribution |
 |---|---|---|
-| exposure | auto-exposure: the image's log-average luminance brought to 0.18 (gain 0.5-8x), then an error in stops | error normal, sd 0.2 (clipped to +-0.5) |
+| exposure | auto-exposure: the image's log-average luminance brought to 0.18 (gain 0.5-4x), then an error in stops | error normal, sd 0.2 (clipped to +-0.5) |
 | white_balance | red and blue gains against green | normal around 1, sd 0.03 each |
 | vignetting | light falloff, 1 - s (theta / theta_max)^2 by ray angle | s uniform 0.2-0.45 |
 | chromatic_aberration | lateral: red and blue scaled about the principal point | +-k, k uniform 0.0005-0.002 |
 | sharpen | the camera's edge enhancement (unsharp mask, radius 1 px) | amount uniform 0.2-0.6 |
-| noise | shot and read noise, in linear light, amplified with the exposure gain (grainy at night) | shot gain uniform 0.001-0.004, read sd uniform 0.002-0.006 |
+| noise | shot and read noise, in linear light, amplified with the exposure gain (grainy at night) | shot gain uniform 0.0005-0.002, read sd uniform 0.001-0.003 |
 | jpeg | JPEG compression of the stream | quality uniform 70-95 (off unless asked) |
 
 The geometry (ray angles, principal point) comes from the camera model (`geometry`), so a camera
@@ -40,8 +40,8 @@ def draw(switches: dict, rng: np.random.Generator) -> dict:
         "vignetting": float(0.2 + 0.25 * u[0]),
         "chromatic_aberration": float((0.0005 + 0.0015 * u[1]) * (1 if u[2] < 0.5 else -1)),
         "sharpen": float(0.2 + 0.4 * u[3]),
-        "shot_gain": float(0.001 + 0.003 * u[4]),
-        "read_sd": float(0.002 + 0.004 * u[5]),
+        "shot_gain": float(0.0005 + 0.0015 * u[4]),
+        "read_sd": float(0.001 + 0.002 * u[5]),
         "jpeg_quality": int(70 + 25 * u[6]),
         "noise_seed": int(u[7] * 2**31),
     }
@@ -71,7 +71,7 @@ def _to_srgb(x):
     return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055)
 
 
-def auto_exposure(lin: np.ndarray, key: float = 0.18, lo: float = 0.5, hi: float = 8.0) -> float:
+def auto_exposure(lin: np.ndarray, key: float = 0.18, lo: float = 0.5, hi: float = 4.0) -> float:
     """The gain that brings the log-average luminance of a linear image to `key`, within [lo, hi]."""
     lum = lin @ np.array([0.2126, 0.7152, 0.0722], np.float32)
     return float(np.clip(key / np.exp(np.mean(np.log(lum + 1e-3))), lo, hi))
