@@ -209,23 +209,25 @@ def _row(frame: Path, height: int = 302) -> np.ndarray:
 
 def pictures(work: Path, out: Path, scenes: int = 4) -> list[Path]:
     """From a `--keep` folder: the first `scenes` daylight scenes of different families, baseline
-    above this checkout (four cameras each), and this checkout's first daylight frame above the
-    real surround-view images of tests/data."""
+    above this checkout (four cameras each), and this checkout's first frame in clear, low-sun or
+    overcast weather above the real surround-view images of tests/data."""
     from PIL import Image
 
-    picked, families = [], set()
+    picked, families, clear = [], set(), []
     for meta in sorted((work / "head").glob("*/000000/meta.json")):
         m = json.loads(meta.read_text())
         if m["weather"]["preset"] != "night" and m["family"] not in families and len(picked) < scenes:
             picked.append(meta.parent.relative_to(work / "head"))
             families.add(m["family"])
+        if m["weather"]["preset"] in ("clear_noon", "low_sun", "overcast"):
+            clear.append(meta.parent.relative_to(work / "head"))
     rows = [r for rel in picked for r in (_row(work / "baseline" / rel), _row(work / "head" / rel))]
     out.mkdir(parents=True, exist_ok=True)
     a, b = out / "realism_before_after.png", out / "realism_beside_real.png"
     write_png_atomic(a, np.concatenate(rows, 0))
     real = np.concatenate([np.asarray(Image.open(REAL / f"{c if c != 'rear' else 'back'}.jpg").convert("RGB").resize((480, 302)))
                            for c in CAMERAS], 1)
-    write_png_atomic(b, np.concatenate([_row(work / "head" / picked[0]), real], 0))
+    write_png_atomic(b, np.concatenate([_row(work / "head" / (clear or picked)[0]), real], 0))
     return [a, b]
 
 

@@ -129,7 +129,7 @@ def build_scene(recipe: dict, rig, grid, topdown_height: float = 60.0, osl_workd
     if ego_body:
         mesh, box, kind, colour = assets.ego_body([np.asarray(rc.cam_to_ego)[:3, 3] for rc in rig], scene_rng(seed, 5))
         obj, _, _ = _mesh_object("ego_body", mesh, mats, next_id)
-        obj.color = (*colour, 1.0)  # (metallic)
+        obj.color = (*colour, 1.0)  # alpha 1: metallic paint
         obj["lights"] = 1.0
         obj.parent = ego
         objects[next_id] = {"name": obj.name, "class": "ego"}

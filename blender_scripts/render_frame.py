@@ -78,8 +78,8 @@ def set_cycles(scene, **settings) -> None:
 @contextmanager
 def label_mode(scene):
     """Settings for renders whose only use is the label passes (written at the first hit): one
-    sample at the pixel centre, no denoising, no bounces (through glass neither), no lights, no sky (the two top-down
-    renders take a third of the time). Everything is restored on exit, and nothing leaves Cycles'
+    sample at the pixel centre, no denoising, no bounces (through glass neither), no lights, no sky
+    (the two top-down renders take a third of the time). Everything is restored on exit, and nothing leaves Cycles'
     scene on the way: objects hidden and shown again come back in another order, and later
     frames' noise would then depend on what was rendered before. The sky goes through the view
     layer's `use_sky`: changing the world itself makes Cycles recompute the Nishita sky (0.15 s)."""
