@@ -66,18 +66,10 @@ def _principled(name, color, rough=0.5, metallic=0.0, spec=0.5):
 
 
 def _noise_mix(m, bsdf, c0, c1, scale, detail=4.0, target="Base Color"):
-    """Base colour varied by a noise texture between c0 and c1 (wear, dirt)."""
+    """Base colour varied by a noise texture (generated coordinates) between c0 and c1 (wear, dirt)."""
     nt = m.node_tree
-    tex = nt.nodes.new("ShaderNodeTexNoise")
-    tex.inputs["Scale"].default_value = scale
-    tex.inputs["Detail"].default_value = detail
-    ramp = nt.nodes.new("ShaderNodeValToRGB")
-    ramp.color_ramp.elements[0].color = (*c0, 1)
-    ramp.color_ramp.elements[1].color = (*c1, 1)
-    ramp.color_ramp.elements[0].position = 0.35
-    ramp.color_ramp.elements[1].position = 0.65
-    nt.links.new(tex.outputs["Fac"], ramp.inputs["Fac"])
-    nt.links.new(ramp.outputs["Color"], bsdf.inputs[target])
+    tex = _noise(nt, scale, detail, coords=False)
+    nt.links.new(_ramp(nt, tex.outputs["Fac"], [(0.35, c0), (0.65, c1)]), bsdf.inputs[target])
     return tex
 
 

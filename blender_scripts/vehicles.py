@@ -273,13 +273,10 @@ def body(m: MeshData, style, size, wheel_r, axles, x0=None, rear_details=True):
                 y0, y1 = sorted((sd * 0.15 * hw_max, sd * 0.7 * hw_max))
                 _box_at(m, xs - 0.08, xs + 0.02, y0, y1, zi, zi + 0.42, "interior")
     # door seams: thin dark lines on the sides
-    seams = [a - off for a in axles]
     doors = s.get("panel_seams") or s.get("pillars") or ()
-    if isinstance(doors, str):
-        doors = ()
-    xs_list = [(p - 0.5) * l for p in doors]
-    if len(seams) >= 2 and style not in ("bus", "truck_cab"):
-        xs_list += [max(seams) - arch_r - 0.08, min(seams) + arch_r + 0.08]
+    xs_list = [] if isinstance(doors, str) else [(p - 0.5) * l for p in doors]
+    if len(local_axles) >= 2 and style not in ("bus", "truck_cab"):
+        xs_list += [max(local_axles) - arch_r - 0.08, min(local_axles) + arch_r + 0.08]
     for xs in xs_list:
         zt = float(np.interp(xs, x - off, belt)) - 0.04
         for sd in (-1, 1):

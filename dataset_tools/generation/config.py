@@ -91,7 +91,8 @@ def with_quality(d, where: str):
     if not isinstance(d, dict) or not isinstance(d.get("render", {}), dict):
         return d  # the schema says what is wrong
     render = d.get("render", {})
-    quality = SCHEMA.fields["render"].fields["quality"].validate(render.get("quality", "photo"), f"{where}: render.quality")
+    field = SCHEMA.fields["render"].fields["quality"]
+    quality = field.validate(render.get("quality", field.default), f"{where}: render.quality")
     return {**d, "render": deep_merge(QUALITY[quality], render)}
 
 
