@@ -131,25 +131,44 @@ def top5(crops: list[np.ndarray]) -> np.ndarray:
     return logits.topk(5, dim=1).indices.numpy()
 
 
+def interval(hits: np.ndarray, groups: np.ndarray, reps: int = 2000, seed: int = 0) -> list[float]:
+    """95 % bootstrap interval of the share of `hits`, resampling whole `groups` (scenes: crops of one
+    scene are not independent draws)."""
+    ids = np.unique(groups)
+    if len(ids) < 2:
+        return [float("nan"), float("nan")]
+    rng = np.random.default_rng(seed)
+    k = np.array([hits[groups == g].sum() for g in ids], float)
+    n = np.array([(groups == g).sum() for g in ids], float)
+    pick = rng.integers(0, len(ids), (reps, len(ids)))
+    shares = k[pick].sum(1) / np.maximum(n[pick].sum(1), 1)
+    return [round(float(v), 3) for v in np.percentile(shares, [2.5, 97.5])]
+
+
 def score(data: Path, sheet: Path | None = None) -> dict:
     """Shares of crops classified as a road vehicle (top-1, top-5), over every frame and over the
-    frames in daylight (weather preset not `night`: a camera at night sees lamps and silhouettes)."""
-    crops, night = [], []
+    frames in daylight (weather preset not `night`: a camera at night sees lamps and silhouettes),
+    with 95 % intervals over scenes (`*_ci`)."""
+    crops, night, scene = [], [], []
     for f in sorted({p.parent for p in data.glob("*/*/cam_*.png")}):
         meta = f / "meta.json"
         dark = meta.is_file() and json.loads(meta.read_text()).get("weather", {}).get("preset") == "night"
         c = vehicle_crops(f)
         crops += c
         night += [dark] * len(c)
+        scene += [f.parent.name] * len(c)
     top = top5(crops)
     hit = np.isin(top, list(ROAD_VEHICLE))
     day = ~np.array(night, bool)
+    scene = np.array(scene)
     if sheet is not None and crops:
         _sheet(crops, hit[:, 0], sheet)
     share = lambda h: float(h.mean()) if len(h) else float("nan")  # noqa: E731
     return {"crops": len(crops), "road_vehicle_top1": share(hit[:, 0]), "road_vehicle_top5": share(hit.any(1)),
+            "road_vehicle_top1_ci": interval(hit[:, 0], scene), "road_vehicle_top5_ci": interval(hit.any(1), scene),
             "crops_day": int(day.sum()), "road_vehicle_top1_day": share(hit[day, 0]),
-            "road_vehicle_top5_day": share(hit[day].any(1))}
+            "road_vehicle_top5_day": share(hit[day].any(1)), "crops_night": int((~day).sum()),
+            "road_vehicle_top1_night": share(hit[~day, 0]), "road_vehicle_top5_night": share(hit[~day].any(1))}
 
 
 def _sheet(crops, hits, path: Path, n: int = 48, thumb: int = 96) -> None:

@@ -21,6 +21,7 @@ from .materials import MATERIAL_CLASSES, build_materials
 from .people import place_people
 from .shapes import MeshData
 from .traffic import ego_pose, place_traffic, vehicle_pose
+from .two_wheelers import place_two_wheelers
 
 
 MAX_HEADLIGHT_CARS = 24
@@ -105,6 +106,12 @@ def build_scene(recipe: dict, rig, grid, topdown_height: float = 60.0, osl_workd
     for k, (mesh, loc, yaw) in enumerate(place_people(layout, scene_rng(seed, 8))):
         obj, _, _ = _mesh_object(f"person{k}", mesh, mats, next_id, loc, yaw)
         objects[next_id] = {"name": obj.name, "class": "pedestrian"}
+        next_id += 1
+    for k, (cls, mesh, loc, yaw, paint) in enumerate(place_two_wheelers(layout, scene_rng(seed, 9))):
+        obj, _, _ = _mesh_object(f"{cls}{k}", mesh, mats, next_id, loc, yaw)
+        if paint is not None:
+            obj.color = (*paint, 1.0)
+        objects[next_id] = {"name": obj.name, "class": cls}
         next_id += 1
     if weather["lights_on"]:
         # spot lights for the vehicles nearest the ego's start; farther ones keep glowing lamps

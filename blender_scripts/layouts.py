@@ -43,7 +43,7 @@ class Layout:
     objects: list[StaticObject] = field(default_factory=list)
     lanes: list[Lane] = field(default_factory=list)
     ego_lane: int = 0
-    lamps: list[tuple] = field(default_factory=list)  # world positions of street-light bulbs
+    lamps: list[tuple] = field(default_factory=list)  # street-light bulbs: (x, y, z) or (x, y, z, watts)
     parked: list[tuple] = field(default_factory=list)  # (x, y, yaw, max_length) parking bays in use
     walks: list[tuple] = field(default_factory=list)  # (Path, offset a, offset b): pavements people walk on
 
@@ -380,6 +380,7 @@ def parking_lot(recipe, rng) -> tuple[Layout, list[Edge]]:
                 yaw = -side * math.pi / 2 if rng.random() < 0.7 else side * math.pi / 2
                 lay.parked.append((cx, cy, yaw, bay_d - 0.3, bay_w - 0.4))
     lay.add("bay_lines", lines)
+    _lot_lights(lay, row_y, x0, bay_d, L, half_y)
     # the ego drives the middle aisle; one more car may follow the aisle ahead at its speed
     path = line_path((-L / 2 - 150, -1.5), (L / 2 + 150, -1.5), step=5.0)
     lay.lanes.append(Lane(path, recipe["ego"]["speed_kmh"] / 3.6, 3.0))
@@ -391,6 +392,24 @@ def parking_lot(recipe, rng) -> tuple[Layout, list[Edge]]:
     edges = [Edge(line_path((-L / 2, s * half_y), (L / 2, s * half_y)), 0.0, s, 0.0, L) for s in (-1, 1)]
     edges += access.edges() + access2.edges()
     return lay, edges
+
+
+LOT_LAMP_W = 1500.0  # a lot's lamps stand closer together than a street's (4500 W): each dimmer
+
+
+def _lot_lights(lay: Layout, row_y, x0: float, bay_d: float, length: float, half_y: float, spacing: float = 25.0):
+    """Lamp posts of a parking lot (lots are lit at night): at both ends of every row of bays, in
+    line with the row (clear of the aisles the ego drives), and along both long sides, `spacing`
+    apart. Placed without drawing, so the layout's stream is unchanged."""
+    spots = [(sx * (abs(x0) + 2.0), side * (y + bay_d / 2), sx * math.pi / 2) for side, y in row_y for sx in (-1, 1)]
+    n = max(1, int(length // spacing))
+    spots += [((k + 0.5) * length / n - length / 2, s * (half_y + 0.8), math.pi if s > 0 else 0.0)
+              for s in (-1, 1) for k in range(n)]  # arms toward the lot
+    for k, (x, y, yaw) in enumerate(spots):
+        mesh, bulb = assets.street_light_mesh(8.0, 0.4)
+        lay.add(f"lot_light{k}", mesh, (x, y, 0.0), yaw)
+        c, s = math.cos(yaw), math.sin(yaw)
+        lay.lamps.append((x + c * bulb[0] - s * bulb[1], y + s * bulb[0] + c * bulb[1], bulb[2], LOT_LAMP_W))
 
 
 # ---------------------------------------------------------------- roadside

@@ -47,6 +47,14 @@ MATERIAL_CLASSES = {
     "clothes": "pedestrian",
     "trousers": "pedestrian",
     "hair": "pedestrian",
+    "bike_frame": "bicycle",
+    "bike_tyre": "bicycle",
+    "bike_metal": "bicycle",
+    "moto_body": "motorcycle",
+    "moto_seat": "motorcycle",
+    "moto_tyre": "motorcycle",
+    "moto_metal": "motorcycle",
+    "moto_lamp": "motorcycle",
 }
 # the ego car's body: the traffic's materials again, painting the fine class `ego`
 EGO_MATERIALS = {f"ego_{n}": n for n in ("car_paint", "car_glass", "tyre", "rim", "trim", "headlight", "taillight", "grille",
@@ -257,12 +265,20 @@ def _facade(m, b):
     nt.links.new(_mix(nt, 1.0, col, stains, "MULTIPLY"), b.inputs["Base Color"])
 
 
-def _windows(m, b):
-    """Glass dark with a dim interior, some panes with a curtain or a lit room behind."""
+def _windows(m, b, night: bool = False):
+    """Glass dark with a dim interior, some panes with a curtain or a lit room behind; at night
+    those rooms glow (warm, each a little brighter or dimmer) and the rest stay dark."""
     nt = m.node_tree
     pane = _noise(nt, 0.9, 0.0).outputs["Fac"]
     nt.links.new(_ramp(nt, pane, [(0.0, (0.02, 0.025, 0.03)), (0.6, (0.03, 0.035, 0.04)), (0.62, (0.25, 0.22, 0.18))],
                        "CONSTANT"), b.inputs["Base Color"])
+    if night:
+        _emission(b, (1.0, 0.78, 0.5), 1.0)
+        lit = nt.nodes.new("ShaderNodeMath")
+        lit.operation = "MULTIPLY"
+        lit.inputs[1].default_value = 4.0
+        nt.links.new(_ramp(nt, pane, [(0.0, (0.0,)), (0.615, (0.0,)), (0.62, (0.35,)), (0.8, (1.0,))]), lit.inputs[0])
+        nt.links.new(lit.outputs[0], b.inputs["Emission Strength"])
 
 
 def _car_paint(m, b):
@@ -310,16 +326,17 @@ def _glass(m):
 
 
 def _plate(m, b):
-    """A number plate: a light plate with a row of dark glyph-like blocks."""
+    """A number plate: a light plate with a row of glyph cells, each as grey as thin black strokes
+    on white average out (solid black blocks read as buttons and displays, not a plate)."""
     nt = m.node_tree
     brick = nt.nodes.new("ShaderNodeTexBrick")
-    brick.inputs["Color1"].default_value = (0.05, 0.05, 0.06, 1)
-    brick.inputs["Color2"].default_value = (0.1, 0.1, 0.1, 1)
+    brick.inputs["Color1"].default_value = (0.3, 0.3, 0.32, 1)
+    brick.inputs["Color2"].default_value = (0.4, 0.4, 0.42, 1)
     brick.inputs["Mortar"].default_value = (0.85, 0.85, 0.8, 1)
     brick.inputs["Scale"].default_value = 1.0
-    brick.inputs["Mortar Size"].default_value = 0.012
-    brick.inputs["Brick Width"].default_value = 0.045
-    brick.inputs["Row Height"].default_value = 0.07
+    brick.inputs["Mortar Size"].default_value = 0.014
+    brick.inputs["Brick Width"].default_value = 0.05
+    brick.inputs["Row Height"].default_value = 0.08
     nt.links.new(_object_coords(nt), brick.inputs["Vector"])
     nt.links.new(brick.outputs["Color"], b.inputs["Base Color"])
 
@@ -337,7 +354,9 @@ def _vehicle_materials(make, night: bool) -> None:
     make("interior", (0.03, 0.028, 0.027), rough=0.8)
     m, b = make("plate", (0.85, 0.85, 0.8), rough=0.4)
     _plate(m, b)
-    m, b = make("headlight", (0.8, 0.82, 0.85), rough=0.05, metallic=0.6)
+    # a clear lens over a chrome reflector: bright only where it mirrors the sky (a white block by
+    # day reads as a projector or a spotlight)
+    m, b = make("headlight", (0.35, 0.36, 0.38), rough=0.08, metallic=0.9)
     b.inputs["Coat Weight"].default_value = 1.0
     if night:
         _emission(b, (1.0, 0.95, 0.85), 40.0)
@@ -385,6 +404,20 @@ def _people_materials(make) -> None:
         nt.links.new(_ramp(nt, shift.outputs[0], stops, interp), b.inputs["Base Color"])
 
 
+def _two_wheeler_materials(make) -> None:
+    """Bicycles and motorcycles: painted frames and bodies (the object's colour), rubber, metal."""
+    for name, cls in (("bike_frame", "bike"), ("moto_body", "moto")):
+        m, b = make(name, (0.5, 0.5, 0.5), rough=0.35)
+        _object_color(m, b)
+        b.inputs["Coat Weight"].default_value = 1.0 if cls == "moto" else 0.3
+    make("bike_tyre", (0.03, 0.03, 0.03), rough=0.8)
+    make("bike_metal", (0.6, 0.6, 0.62), rough=0.3, metallic=1.0)
+    make("moto_seat", (0.02, 0.02, 0.02), rough=0.55)
+    make("moto_tyre", (0.03, 0.03, 0.03), rough=0.85)
+    make("moto_metal", (0.45, 0.45, 0.47), rough=0.35, metallic=1.0)
+    make("moto_lamp", (0.8, 0.82, 0.85), rough=0.05, metallic=0.6)
+
+
 def build_materials(weather: dict) -> dict[str, bpy.types.Material]:
     wet = float(weather.get("wetness", 0.0))
     night = bool(weather.get("lights_on", False))
@@ -418,9 +451,7 @@ def build_materials(weather: dict) -> dict[str, bpy.types.Material]:
     m, b = make("wall", (0.5, 0.45, 0.4), rough=0.85)
     _facade(m, b)
     m, b = make("window", (0.05, 0.07, 0.09), rough=0.05, spec=1.0)
-    _windows(m, b)
-    if night:
-        _emission(b, (1.0, 0.8, 0.5), 0.3)
+    _windows(m, b, night)
     make("metal", (0.4, 0.4, 0.42), rough=0.4, metallic=1.0)
     m, b = make("sign", (0.8, 0.8, 0.8), rough=0.35)
     _object_color(m, b)
@@ -433,6 +464,7 @@ def build_materials(weather: dict) -> dict[str, bpy.types.Material]:
     make("barrier_concrete", (0.5, 0.49, 0.47), rough=0.85)  # looks like the pillars, labelled barrier
     _vehicle_materials(make, night)
     _people_materials(make)
+    _two_wheeler_materials(make)
     for name, base in EGO_MATERIALS.items():
         mats[name] = mats[base].copy()
         mats[name].name = name

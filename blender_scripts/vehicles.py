@@ -96,10 +96,12 @@ def _rings(style, u, size, clear, axles, arch_r, wheel_r):
     inner = np.maximum(hw - 0.32, 0.2)
     side = np.stack([
         np.stack([-inner, zb], 1),  # inner bottom (stays down under the arch: the liner)
-        np.stack([-0.97 * hw, z_arch], 1),  # outer bottom edge, following the arch
-        np.stack([-hw, z_arch + 0.3 * (belt - z_arch)], 1),  # rocker / lower door
-        np.stack([-hw, z_arch + 0.75 * (belt - z_arch)], 1),  # door / shoulder
-        np.stack([-0.97 * hw, belt], 1),  # beltline
+        np.stack([-0.95 * hw, z_arch], 1),  # outer bottom edge, following the arch
+        # the side curves: the lower door tucks in, the shoulder rolls over to the beltline (so it
+        # reflects the ground below and the sky above, as car sides do)
+        np.stack([-0.985 * hw, z_arch + 0.3 * (belt - z_arch)], 1),  # rocker / lower door
+        np.stack([-hw, z_arch + 0.7 * (belt - z_arch)], 1),  # door / shoulder
+        np.stack([-0.95 * hw, belt], 1),  # beltline
         np.stack([-(0.95 * hw - 0.02 * t), belt + 0.03 * t + 0.01 * (1 - t)], 1),  # glass bottom
         np.stack([-(0.85 * hw * (1 - t) + rw * t), belt + (g - 0.06) * t + 0.02 * (1 - t)], 1),  # glass top
         np.stack([-(0.55 * hw * (1 - t) + 0.86 * rw * t), top + 0.03 * (1 - t)], 1),  # roof edge
@@ -211,9 +213,9 @@ def _box_at(m, x0, x1, y0, y1, z0, z1, mat):
 
 def rear_lamps(m: MeshData, xr, hw, belt, clear, low=False):
     """Tail lights, a dark lower bumper and a plate on a rear face at x = xr."""
-    z = (clear + 0.35, clear + 0.55) if low else (belt - 0.16, belt - 0.03)
+    z = (clear + 0.35, clear + 0.55) if low else (belt - 0.2, belt - 0.03)
     for sd in (-1, 1):
-        y0, y1 = sorted((sd * 0.92 * hw, sd * 0.6 * hw))
+        y0, y1 = sorted((sd * 0.93 * hw, sd * 0.55 * hw))
         _box_at(m, xr, xr + 0.035, y0, y1, *z, "taillight")
     _box_at(m, xr + 0.004, xr + 0.12, -0.9 * hw, 0.9 * hw, clear + 0.02, clear + 0.16, "trim")
     _box_at(m, xr, xr + 0.025, -0.26, 0.26, clear + 0.2, clear + 0.31, "plate")

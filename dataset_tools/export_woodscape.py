@@ -48,11 +48,11 @@ WOODSCAPE_RGB = [(0, 0, 0), (255, 0, 255), (0, 0, 255), (0, 255, 0), (255, 0, 0)
                  (255, 128, 128), (128, 128, 0)]
 # our fine classes -> WoodScape's; everything else (sidewalk, building, vegetation, canopy, pole,
 # bridge, pillar, terrain, barrier, the ego body, sky) is void, as WoodScape maps its own
-# structure/pole/fence/green_strip/ego_vehicle; person, rider, bicycle, motorcycle and traffic_sign
-# have no counterpart in our scenes.
+# structure/pole/fence/green_strip/ego_vehicle; riders are people (pedestrian -> person), and
+# WoodScape's rider and traffic_sign have no counterpart in our scenes.
 FINE_TO_WOODSCAPE = {"road": "road", "parking": "road", "lane_marking": "lanemarks", "crosswalk": "lanemarks",
                      "stop_line": "lanemarks", "curb": "curb", "vehicle": "vehicles",
-                     "pedestrian": "person"}
+                     "pedestrian": "person", "bicycle": "bicycle", "motorcycle": "motorcycle"}
 BOX_CLASS = ("vehicles", 0)  # scripts/configs/box_2d_mapping_5_classes.json
 INSTANCE_TAG = "car"  # scripts/mappers/class_names.json: car -> vehicles
 

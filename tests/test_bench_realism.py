@@ -48,5 +48,18 @@ def test_score_counts_top1_and_top5(tmp_path, monkeypatch):
     _frame(tmp_path)
     monkeypatch.setattr(realism, "top5", lambda crops: np.array([[1, 2, 436, 4, 5]] * len(crops)))
     s = realism.score(tmp_path)
+    nan = s.pop("road_vehicle_top1_night"), s.pop("road_vehicle_top5_night")
+    assert np.isnan(nan).all()  # no night frame
+    assert np.isnan(s.pop("road_vehicle_top1_ci")).all() and np.isnan(s.pop("road_vehicle_top5_ci")).all()  # one scene
     assert s == {"crops": 1, "road_vehicle_top1": 0.0, "road_vehicle_top5": 1.0, "crops_day": 1,
-                 "road_vehicle_top1_day": 0.0, "road_vehicle_top5_day": 1.0}
+                 "road_vehicle_top1_day": 0.0, "road_vehicle_top5_day": 1.0, "crops_night": 0}
+
+
+def test_interval_resamples_scenes_and_covers_the_share():
+    # 3 scenes: all hits, half, none (10 crops each): the share is 0.5, scenes differ a lot
+    hits = np.array([1] * 10 + [1, 0] * 5 + [0] * 10, bool)
+    groups = np.repeat(["a", "b", "c"], 10)
+    lo, hi = realism.interval(hits, groups)
+    assert lo < 0.5 < hi and hi - lo > 0.3  # wide: three scenes
+    same = realism.interval(np.array([1, 0] * 15, bool), groups)
+    assert same == [0.5, 0.5]  # every scene alike: no spread

@@ -14,7 +14,8 @@ import woodscape_reader as ws
 ROOT = Path(__file__).resolve().parents[1]
 CAMS = {"FV": "front", "RV": "rear", "MVL": "left", "MVR": "right"}
 # fine class name -> WoodScape class index, written out again here from docs/geometry.md's table
-EXPECT = {"road": 1, "parking": 1, "lane_marking": 2, "crosswalk": 2, "stop_line": 2, "curb": 3, "pedestrian": 4, "vehicle": 6}
+EXPECT = {"road": 1, "parking": 1, "lane_marking": 2, "crosswalk": 2, "stop_line": 2, "curb": 3, "pedestrian": 4, "vehicle": 6,
+          "bicycle": 7, "motorcycle": 8}
 
 
 def test_export_woodscape_reads_back(tiny_dataset, tmp_path):

@@ -213,7 +213,7 @@ def test_instance_ids_unique_and_consistent(scene_tiny_run):
                     continue
                 cls = meta["instances"][str(inst)]["class"]
                 sem = np.unique(ch["semantic"][ch["instance"] == inst])
-                if cls in ("vehicle", "pedestrian"):  # every pixel of a vehicle (person) is labelled so
+                if cls in ("vehicle", "pedestrian", "bicycle", "motorcycle"):  # every pixel of one is labelled so
                     assert sem.tolist() == [CLASS_IDS[cls]], (key, inst)
 
 
@@ -232,6 +232,25 @@ def test_people_stand_on_the_pavements_of_urban_scenes(scene_tiny_run):
         if seen.any():  # a person from above is about 0.2-0.5 m wide, a head at 1.5-1.95 m
             h = td["ground.height"][seen]
             assert h.max() > Z_KERB + 1.0 and h.max() < Z_KERB + 2.0, key
+
+
+def test_two_wheelers_on_the_pavements_of_urban_scenes(scene_tiny_run):
+    from blender_scripts.layouts import Z_KERB
+
+    found = 0
+    for key, d in _frames(scene_tiny_run).items():
+        meta = json.loads((d / "meta.json").read_text())
+        bikes = [int(k) for k, v in meta["instances"].items() if v["class"] in ("bicycle", "motorcycle")]
+        found += len(bikes)
+        if meta["family"] in ("highway", "roundabout", "parking_lot"):  # no pavements there
+            assert not bikes, key
+        td = read_exr(d / "topdown.exr")
+        for cls in ("bicycle", "motorcycle"):
+            seen = np.isin(td["ground.instance"], bikes) & (td["ground.semantic"] == CLASS_IDS[cls])
+            if seen.any():  # handlebars at about 1 m above the pavement
+                h = td["ground.height"][seen]
+                assert Z_KERB + 0.7 < h.max() < Z_KERB + 1.3, (key, cls)
+    assert found, "no bicycle or motorcycle in any frame of the tiny scenes"
 
 
 def test_road_under_ego_and_vehicles_where_meta_says(scene_tiny_run, scene_rig):

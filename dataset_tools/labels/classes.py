@@ -31,7 +31,9 @@ FINE_CLASSES = [
     (15, "terrain", False, (152, 251, 152)),  # grass, verge
     (16, "barrier", False, (102, 102, 156)),  # guard rails, median walls
     (17, "ego", False, (255, 0, 255)),  # the ego car's own body (camera self-occlusion); never a label
-    (18, "pedestrian", False, (220, 20, 60)),  # people on the pavements
+    (18, "pedestrian", False, (220, 20, 60)),  # people on the pavements, riders
+    (19, "bicycle", False, (119, 11, 32)),  # parked or ridden on the pavements
+    (20, "motorcycle", False, (0, 0, 230)),
 ]
 
 CLASS_IDS = {name: cid for cid, name, _, _ in FINE_CLASSES}
@@ -63,6 +65,8 @@ DEFAULT_CLASS_MAP = {
     "barrier": "background",
     "ego": "invalid",
     "pedestrian": "background",  # the paper's classes have no people: not drivable, not a vehicle
+    "bicycle": "background",  # nor two-wheelers (its vehicles are cars, vans, trucks and buses)
+    "motorcycle": "background",
 }
 
 
