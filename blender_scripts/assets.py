@@ -1,4 +1,5 @@
-"""Procedural assets as MeshData (pure numpy): vehicles, trees, buildings, street lights, bridges.
+"""Procedural assets as MeshData (pure numpy): vehicles, trees, buildings, street lights, bridges,
+street furniture (traffic lights, hedges, bushes, benches, bins).
 
 Material names used here are defined in blender_scripts/materials.py, each with its fine class.
 Vehicles are built in their own frame: x forward, origin on the ground at the box centre.
@@ -6,6 +7,7 @@ Vehicles are built in their own frame: x forward, origin on the ground at the bo
 
 from __future__ import annotations
 
+import math
 
 import numpy as np
 
@@ -108,8 +110,8 @@ def _branches(trunk: MeshData, rng: np.random.Generator, trunk_h, top, trunk_r, 
 
 
 def building_mesh(rng: np.random.Generator, length, depth, height) -> MeshData:
-    """A building facing local -y (the street): a window grid (or bands) on every floor, often a
-    glazed shop front on the ground floor, a cornice on top."""
+    """A building facing local -y (the street): a window grid (or bands) on every floor, balconies on
+    some, often a glazed shop front on the ground floor under an awning or a fascia, a cornice on top."""
     m = MeshData().box((0, 0, 0), (length, depth, height), mat="wall")
     floor_h = rng.uniform(2.9, 3.6)
     floors = max(1, int(height / floor_h))
@@ -133,9 +135,25 @@ def building_mesh(rng: np.random.Generator, length, depth, height) -> MeshData:
             x = (k - (n - 1) / 2) * pitch
             m.add([(x - win_w / 2, y, z), (x + win_w / 2, y, z), (x + win_w / 2, y, z + win_h), (x - win_w / 2, y, z + win_h)],
                   [(0, 1, 2, 3)], "window")
+        # balconies under every street-side window of about a third of the buildings (chosen from
+        # the size already drawn: no draw more, so the layout's stream is unchanged)
+        if f >= 1 and int(height * 10) % 3 == 0:
+            for k in range(n):
+                x = (k - (n - 1) / 2) * pitch
+                m.box((x, y - 0.5, z - 0.12), (win_w + 0.4, 1.0, 0.12), mat="wall")  # slab
+                m.box((x, y - 0.98, z), (win_w + 0.4, 0.04, 0.9), mat="railing")
+                for sx in (-1, 1):
+                    m.box((x + sx * (win_w / 2 + 0.18), y - 0.5, z), (0.04, 1.0, 0.9), mat="railing")
     if shop:
         m.box((0, -(depth / 2 + 0.03), 0.35), (length * 0.86, 0.06, 2.5), mat="window")
-        m.box((0, -(depth / 2 + 0.25), 2.95), (length * 0.9, 0.5, 0.12), mat="wall")  # awning / fascia
+        y0 = -(depth / 2 + 0.03)
+        if int(length * 10) % 3:  # an awning over two shop fronts in three, a fascia board over the rest
+            hx = length * 0.43
+            m.add([(-hx, y0, 3.05), (hx, y0, 3.05), (hx, y0 - 1.3, 2.55), (-hx, y0 - 1.3, 2.55)], [(0, 1, 2, 3)], "awning")
+            m.add([(-hx, y0 - 1.3, 2.55), (hx, y0 - 1.3, 2.55), (hx, y0 - 1.3, 2.33), (-hx, y0 - 1.3, 2.33)], [(0, 1, 2, 3)],
+                  "awning")  # valance
+        else:
+            m.box((0, y0 - 0.1, 2.95), (length * 0.9, 0.2, 0.5), mat="awning")  # fascia with the shop's colours
     m.box((0, 0, height), (length + 0.3, depth + 0.3, 0.3), mat="wall")  # cornice
     return m
 
@@ -151,6 +169,68 @@ def sign_mesh(rng: np.random.Generator) -> MeshData:
         m.box((0, -0.05, h - 0.65), (0.6, 0.03, 0.6), mat="sign")
     else:
         m.box((0, -0.05, h - 0.75), (1.4, 0.03, 0.7), mat="sign")
+    return m
+
+
+SIGNAL_COLOURS = ("red", "amber", "green")  # top to bottom
+
+
+def traffic_light_mesh(lit: int, height: float = 3.2) -> MeshData:
+    """A traffic light facing local -y: a pole, a dark housing with a backplate, three lenses under
+    visors (lens `lit` glows: 0 red, 1 amber, 2 green)."""
+    m = MeshData().cylinder((0, 0, 0), 0.07, height, n=8, mat="metal")
+    hz = height - 0.05
+    m.box((0, -0.12, hz), (0.32, 0.24, 0.95), mat="signal_housing")
+    m.box((0, -0.05, hz - 0.08), (0.55, 0.03, 1.1), mat="signal_housing")  # backplate
+    for k, colour in enumerate(SIGNAL_COLOURS):
+        z = hz + 0.95 - 0.16 - k * 0.3
+        m.cylinder((0, -0.245, z), 0.1, 0.02, n=12, mat=f"signal_{colour}" if k == lit else "signal_off", axis="y")
+        m.box((0, -0.3, z + 0.1), (0.24, 0.12, 0.02), mat="signal_housing")  # visor
+    return m
+
+
+def hedge_mesh(rng: np.random.Generator, length: float, height: float, depth: float) -> MeshData:
+    """A clipped hedge along local x: a row of overlapping leafy blobs, bottom on z = 0."""
+    m = MeshData()
+    m.smooth_angle = 60.0
+    n = max(2, int(length / 0.8))
+    for k in range(n):
+        x = (k + 0.5) * length / n - length / 2
+        h = height * rng.uniform(0.9, 1.05)
+        m.ellipsoid((x, rng.uniform(-0.05, 0.05), h / 2), (length / n * 0.75, depth / 2, h / 2), mat="hedge", nu=8, nv=5)
+    return m
+
+
+def bush_mesh(rng: np.random.Generator) -> MeshData:
+    """A bush: a few leafy blobs round a centre, bottom on z = 0."""
+    m = MeshData()
+    m.smooth_angle = 60.0
+    r = rng.uniform(0.4, 0.9)
+    for _ in range(int(rng.integers(3, 6))):
+        a = rng.uniform(0, 2 * math.pi)
+        d = rng.uniform(0, r * 0.6)
+        rr = r * rng.uniform(0.5, 0.8)
+        m.ellipsoid((d * math.cos(a), d * math.sin(a), rr * 0.9), (rr, rr, rr * 0.9), mat="hedge", nu=8, nv=5)
+    return m
+
+
+def bench_mesh() -> MeshData:
+    """A park bench along local x, its seat facing local -y: wooden slats on two metal frames."""
+    m = MeshData()
+    for x in (-0.7, 0.7):
+        m.box((x, 0.0, 0.0), (0.06, 0.5, 0.42), mat="furniture_metal")
+        m.box((x, 0.22, 0.42), (0.06, 0.06, 0.45), mat="furniture_metal")
+    for k in range(3):
+        m.box((0, -0.18 + k * 0.16, 0.42), (1.7, 0.12, 0.04), mat="bench_wood")  # seat slats
+    for k in range(2):
+        m.box((0, 0.24, 0.55 + k * 0.17), (1.7, 0.03, 0.11), mat="bench_wood")  # back slats
+    return m
+
+
+def bin_mesh() -> MeshData:
+    """A litter bin on a post."""
+    m = MeshData().cylinder((0, 0, 0), 0.04, 0.6, n=6, mat="furniture_metal")
+    m.cylinder((0, 0, 0.35), 0.22, 0.6, n=12, mat="bin")
     return m
 
 

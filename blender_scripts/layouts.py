@@ -46,6 +46,7 @@ class Layout:
     lamps: list[tuple] = field(default_factory=list)  # street-light bulbs: (x, y, z) or (x, y, z, watts)
     parked: list[tuple] = field(default_factory=list)  # (x, y, yaw, max_length) parking bays in use
     walks: list[tuple] = field(default_factory=list)  # (Path, offset a, offset b): pavements people walk on
+    signals: list[tuple] = field(default_factory=list)  # (x, y, z, yaw): traffic lights at stop lines
 
     def add(self, name, mesh, location=(0.0, 0.0, 0.0), yaw=0.0, color=None):
         if len(mesh):
@@ -283,6 +284,8 @@ def junctions(recipe, rng, crossings, arms=(1, -1), buildings=False) -> tuple[La
             # incoming lanes: y < 0 for traffic heading +x (coming from -x), y > 0 from +x
             y0, y1 = (-edge, 0.0) if sgn < 0 else (0.0, edge)
             stop.rect(xs - 0.2, xs + 0.2, y0, y1, Z_PAINT, "paint_stop")
+            # a traffic light at the kerb on the incoming traffic's right, facing it
+            lay.signals.append((xs, sgn * (road.half + 0.6), Z_KERB if sw > 0 else 0.0, sgn * math.pi / 2))
         if sw > 0:
             walk = MeshData()
             for sx in (-1, 1):
@@ -490,7 +493,8 @@ SIGN_COLOURS = [(0.75, 0.05, 0.04), (0.05, 0.2, 0.6), (0.8, 0.8, 0.78), (0.85, 0
 
 
 def street_furniture(lay: Layout, edges: list, recipe, rng) -> None:
-    """Road signs along every edge (about one per 60 m) and bollards on sidewalks (one per 40 m)."""
+    """Road signs along every edge (about one per 60 m) and bollards on sidewalks (one per 40 m),
+    then traffic lights at the junctions' stop lines, guard rails, hedges and bushes, benches and bins."""
     sw = recipe["roadside"]["sidewalk_width"]
     n_sign = n_bollard = 0
     for e in edges:
@@ -519,6 +523,65 @@ def street_furniture(lay: Layout, edges: list, recipe, rng) -> None:
                 else:
                     lay.add(f"bollard{n_bollard}", assets.bollard_mesh(), (x + nx * off, y + ny * off, z), yaw)
                     n_bollard += 1
+    # drawn after the signs and bollards, so those stay where they were
+    for k, (x, y, z, yaw) in enumerate(lay.signals):
+        lay.add(f"traffic_light{k}", assets.traffic_light_mesh(int(rng.integers(3))), (x, y, z), yaw)
+    _roadside_green_and_rails(lay, edges, recipe, rng)
+    _pavement_furniture(lay, rng)
+
+
+GUARD_RAIL_P = 0.7  # chance that a highway roadside has a guard rail
+
+
+def _roadside_green_and_rails(lay: Layout, edges: list, recipe, rng) -> None:
+    """Guard rails along highway roadsides (a steel beam on posts, class barrier); hedges (about one
+    per 40 m, 4-12 m long) and bushes (one per 25 m) just beyond the other roadsides."""
+    highway = recipe["family"] == "highway"
+    n_hedge = n_bush = 0
+    for k, e in enumerate(edges):
+        for a, b in _intervals(e.s0, e.s1, e.skip):
+            if b - a < 4:
+                continue
+            if highway:
+                if rng.random() < GUARD_RAIL_P:
+                    off = e.offset + e.out * 0.7
+                    rail = MeshData().ribbon(Path(e.path.sub(a, b)), off + 0.05, off - 0.05, 0.8, "guardrail", depth=0.32)
+                    for s in np.arange(a + 1.0, b, 4.0):
+                        (x, y), h = e.path.at(s)
+                        rail.box((x - math.sin(h) * off, y + math.cos(h) * off, 0.0), (0.1, 0.08, 0.75), h, "guardrail")
+                    lay.add(f"guard_rail{k}_{int(a)}", rail)
+                continue
+            for _ in range(int(rng.poisson((b - a) / 40))):
+                length = rng.uniform(4.0, 12.0)
+                s = rng.uniform(a, max(a, b - length)) + length / 2
+                (x, y), h = e.path.at(s)
+                off = e.offset + e.out * rng.uniform(0.6, 1.2)
+                mesh = assets.hedge_mesh(rng, length, rng.uniform(0.7, 1.4), rng.uniform(0.6, 1.0))
+                lay.add(f"hedge{n_hedge}", mesh, (x - math.sin(h) * off, y + math.cos(h) * off, 0.0), h)
+                n_hedge += 1
+            for _ in range(int(rng.poisson((b - a) / 25))):
+                s = rng.uniform(a, b)
+                (x, y), h = e.path.at(s)
+                off = e.offset + e.out * rng.uniform(0.8, 3.0)
+                lay.add(f"bush{n_bush}", assets.bush_mesh(rng), (x - math.sin(h) * off, y + math.cos(h) * off, 0.0),
+                        float(rng.uniform(0, 2 * math.pi)))
+                n_bush += 1
+
+
+def _pavement_furniture(lay: Layout, rng) -> None:
+    """Benches (one per 100 m) and litter bins (one per 60 m) on the pavements, at their outer edge
+    (the side away from the road), benches facing the road."""
+    n = 0
+    for path, a, b in lay.walks:
+        side = 1.0 if b > a else -1.0
+        for kind, per_m, inset in (("bench", 100.0, 0.45), ("bin", 60.0, 0.35)):
+            for s in rng.uniform(0, path.length, int(rng.poisson(path.length / per_m))):
+                (x, y), h = path.at(float(s))
+                off = b - side * inset
+                yaw = h + (0.0 if side > 0 else math.pi)  # a bench's seat faces local -y: toward the road
+                mesh = assets.bench_mesh() if kind == "bench" else assets.bin_mesh()
+                lay.add(f"{kind}{n}", mesh, (x - math.sin(h) * off, y + math.cos(h) * off, Z_KERB), yaw)
+                n += 1
 
 
 def terrain(lay: Layout, size: float = 600.0) -> None:

@@ -47,6 +47,18 @@ MATERIAL_CLASSES = {
     "clothes": "pedestrian",
     "trousers": "pedestrian",
     "hair": "pedestrian",
+    "signal_housing": "pole",
+    "signal_off": "pole",
+    "signal_red": "pole",
+    "signal_amber": "pole",
+    "signal_green": "pole",
+    "guardrail": "barrier",
+    "hedge": "vegetation",
+    "bench_wood": "street_furniture",
+    "furniture_metal": "street_furniture",
+    "bin": "street_furniture",
+    "awning": "building",
+    "railing": "building",
     "bike_frame": "bicycle",
     "bike_tyre": "bicycle",
     "bike_metal": "bicycle",
@@ -418,6 +430,40 @@ def _two_wheeler_materials(make) -> None:
     make("moto_lamp", (0.8, 0.82, 0.85), rough=0.05, metallic=0.6)
 
 
+def _furniture_materials(make) -> None:
+    """Traffic lights (the lit lens glows by day too), guard rails, hedges, benches, bins, awnings."""
+    make("signal_housing", (0.02, 0.02, 0.022), rough=0.5)
+    make("signal_off", (0.03, 0.03, 0.03), rough=0.1, spec=1.0)
+    for name, rgb in (("signal_red", (1.0, 0.05, 0.02)), ("signal_amber", (1.0, 0.5, 0.02)),
+                      ("signal_green", (0.1, 1.0, 0.5))):
+        _, b = make(name, tuple(0.3 * c for c in rgb), rough=0.1)
+        _emission(b, rgb, 6.0)
+    make("guardrail", (0.55, 0.56, 0.57), rough=0.35, metallic=1.0)
+    m, b = make("hedge", (0.04, 0.14, 0.03), rough=0.85)
+    _noise_mix(m, b, (0.025, 0.09, 0.02), (0.07, 0.2, 0.04), 3.0)
+    _bump(m, b, _noise(m.node_tree, 12.0, detail=3.0).outputs["Fac"], 0.8, distance=0.2)
+    make("bench_wood", (0.3, 0.18, 0.09), rough=0.7)
+    make("furniture_metal", (0.08, 0.09, 0.09), rough=0.45, metallic=0.8)
+    make("bin", (0.05, 0.12, 0.08), rough=0.5)
+    m, b = make("awning", (0.5, 0.1, 0.08), rough=0.8)
+    _awning(m, b)
+    make("railing", (0.05, 0.05, 0.055), rough=0.4, metallic=0.7)
+
+
+def _awning(m, b) -> None:
+    """Awning fabric: stripes of a colour drawn per building (the object's random number) and off-white."""
+    nt = m.node_tree
+    info = nt.nodes.new("ShaderNodeObjectInfo")
+    colour = _ramp(nt, info.outputs["Random"], [(0.0, (0.45, 0.05, 0.04)), (0.25, (0.05, 0.2, 0.1)), (0.5, (0.08, 0.1, 0.3)),
+                                                (0.75, (0.5, 0.35, 0.05)), (1.0, (0.2, 0.2, 0.2))], "CONSTANT")
+    wave = nt.nodes.new("ShaderNodeTexWave")
+    wave.inputs["Scale"].default_value = 2.0
+    wave.inputs["Distortion"].default_value = 0.0
+    nt.links.new(_object_coords(nt), wave.inputs["Vector"])
+    stripes = _ramp(nt, wave.outputs["Fac"], [(0.0, (0.0,)), (0.5, (1.0,))], "CONSTANT")
+    nt.links.new(_mix(nt, stripes, colour, (0.75, 0.72, 0.65)), b.inputs["Base Color"])
+
+
 def build_materials(weather: dict) -> dict[str, bpy.types.Material]:
     wet = float(weather.get("wetness", 0.0))
     night = bool(weather.get("lights_on", False))
@@ -465,6 +511,7 @@ def build_materials(weather: dict) -> dict[str, bpy.types.Material]:
     _vehicle_materials(make, night)
     _people_materials(make)
     _two_wheeler_materials(make)
+    _furniture_materials(make)
     for name, base in EGO_MATERIALS.items():
         mats[name] = mats[base].copy()
         mats[name].name = name

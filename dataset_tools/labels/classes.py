@@ -34,6 +34,7 @@ FINE_CLASSES = [
     (18, "pedestrian", False, (220, 20, 60)),  # people on the pavements, riders
     (19, "bicycle", False, (119, 11, 32)),  # parked or ridden on the pavements
     (20, "motorcycle", False, (0, 0, 230)),
+    (21, "street_furniture", False, (180, 120, 60)),  # benches, litter bins
 ]
 
 CLASS_IDS = {name: cid for cid, name, _, _ in FINE_CLASSES}
@@ -67,6 +68,7 @@ DEFAULT_CLASS_MAP = {
     "pedestrian": "background",  # the paper's classes have no people: not drivable, not a vehicle
     "bicycle": "background",  # nor two-wheelers (its vehicles are cars, vans, trucks and buses)
     "motorcycle": "background",
+    "street_furniture": "background",
 }
 
 
