@@ -185,4 +185,22 @@ def set_frame(built: BuiltScene, frame: int) -> dict:
         })
     bpy.context.view_layer.update()
     return {"time_s": t, "ego_pose": {"x": ex, "y": ey, "yaw": eyaw, "ego_to_world": ego_to_world.tolist()},
-            "actors": actors, "world_to_ego": world_to_ego}
+            "actors": actors, "world_to_ego": world_to_ego, "motion": frame_motion(built, t)}
+
+
+MOTION_DT = 0.04  # s: the span around a frame the motion blur's paths are taken over (>= any exposure)
+
+
+def frame_motion(built: BuiltScene, t: float, dt: float = MOTION_DT) -> dict:
+    """How the scene moves over `dt` seconds centred on time t (sensor.motion_flow): the ego's
+    world-to-ego matrices at both ends and, per moving vehicle, the world motion from its pose at t
+    to its pose at each end."""
+    r, lay = built.recipe, built.layout
+    ends = (t - dt / 2, t + dt / 2)
+    w2e = [np.linalg.inv(pose_matrix(*ego_pose(lay, r, s))).tolist() for s in ends]
+    moving = {}
+    for v, obj in built.vehicles:
+        if v.parked_pose is None:
+            at_t = np.linalg.inv(pose_matrix(*vehicle_pose(lay, v, t)))
+            moving[obj.pass_index] = [(pose_matrix(*vehicle_pose(lay, v, s)) @ at_t).tolist() for s in ends]
+    return {"dt": dt, "world_to_ego": w2e, "instances": moving}

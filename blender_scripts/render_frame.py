@@ -106,7 +106,7 @@ def label_mode(scene):
 def _render_to_exr(scene, camera, width, height, tmpdir: Path, tag: str, png: Path | None = None,
                    clock: dict | None = None, post=None):
     """Render through `camera` and return Blender's passes as a dict (rows top-down); time spent
-    saving the PNG (after `post`, the camera's effects, on its pixels) goes to clock["write"]."""
+    saving the PNG (after `post(pixels, passes)`, the camera's effects) goes to clock["write"]."""
     use_camera(scene, camera)
     if (scene.render.resolution_x, scene.render.resolution_y) != (width, height):
         raise RuntimeError(f"camera '{camera.name}' renders {scene.render.resolution_x}x"
@@ -118,6 +118,12 @@ def _render_to_exr(scene, camera, width, height, tmpdir: Path, tag: str, png: Pa
     raw = tmpdir / f"{tag}.exr"
     scene.render.filepath = str(raw)
     bpy.ops.render.render(write_still=True)
+    passes = read_exr(raw)
+    raw.unlink()
+    out = {k.split(".", 1)[1]: v for k, v in passes.items() if not k.startswith("Composite.")}
+    for c in "RGB":  # the compositor's image (fog) replaces the render layer's where it ran
+        if f"Composite.Combined.{c}" in passes:
+            out[f"Combined.{c}"] = passes[f"Composite.Combined.{c}"]
     if png is not None:
         t0 = time.perf_counter()
         settings.file_format = "PNG"
@@ -127,16 +133,10 @@ def _render_to_exr(scene, camera, width, height, tmpdir: Path, tag: str, png: Pa
         tmp = tmpdir / f"{tag}.png"
         bpy.data.images["Render Result"].save_render(str(tmp), scene=scene)
         img = read_png(tmp, np.uint8, 3)
-        write_png_atomic(png, post(img) if post else img)
+        write_png_atomic(png, post(img, out) if post else img)
         tmp.unlink()
         if clock is not None:
             clock["write"] = clock.get("write", 0.0) + time.perf_counter() - t0
-    passes = read_exr(raw)
-    raw.unlink()
-    out = {k.split(".", 1)[1]: v for k, v in passes.items() if not k.startswith("Composite.")}
-    for c in "RGB":  # the compositor's image (fog) replaces the render layer's where it ran
-        if f"Composite.Combined.{c}" in passes:
-            out[f"Combined.{c}"] = passes[f"Composite.Combined.{c}"]
     return out
 
 
@@ -210,9 +210,10 @@ def render_topdown(scene, camera, size: int, occluders, world_to_ego: np.ndarray
 
 def render_frame(built, frame_dir: Path, fisheye_sizes: dict, topdown_size: int, render_cfg: dict,
                  cycles_seed: int, tmpdir: Path, frame_meta: dict, supersample: int = 1,
-                 marking_share: float = 0.25, sensor_geometry: dict | None = None) -> tuple[dict, dict]:
+                 marking_share: float = 0.25, sensor_geometry: dict | None = None, rig=None) -> tuple[dict, dict]:
     """Render every pass of the posed frame into frame_dir; -> (timings (s), the camera effects drawn
-    per camera). sensor_geometry: camera name -> (ray angles, principal point), sensor.camera_geometry."""
+    per camera). sensor_geometry: camera name -> (ray angles, principal point), sensor.camera_geometry;
+    rig: the cameras the motion blur projects through (frame_meta["motion"] says how the scene moves)."""
     scene = bpy.context.scene
     frame_dir.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
@@ -223,7 +224,15 @@ def render_frame(built, frame_dir: Path, fisheye_sizes: dict, topdown_size: int,
         w, h = fisheye_sizes[name]
         effects[name] = sensor.draw(render_cfg["sensor"], np.random.default_rng([cycles_seed, 7, k]))
         theta, principal = (sensor_geometry or {}).get(name, (None, None))
-        post = (lambda img, p=effects[name], t=theta, c=principal: sensor.apply(img, p, t, c)) if effects[name] else None
+        post = None
+        if effects[name]:
+            def post(img, passes, p=effects[name], t=theta, c=principal, rc=rig[name] if rig is not None else None):
+                flow = None
+                if p.get("motion_blur") and rc is not None:
+                    pos = np.stack([passes[f"Position.{a}"] for a in "XYZ"], -1)
+                    flow = sensor.motion_flow(rc.camera, rc.cam_to_ego, pos, np.rint(passes["IndexOB.X"]).astype(np.int64),
+                                              frame_meta["motion"])
+                return sensor.apply(img, p, t, c, flow)
         render_fisheye(scene, cam, w, h, frame_dir, name, tmpdir, clock, bool(built.ego_body), post)
     t1 = time.perf_counter()
     with label_mode(scene):

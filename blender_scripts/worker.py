@@ -75,7 +75,7 @@ def run_task(task: RenderTask, state: dict) -> None:
         fm = set_frame(built, frame)
         seed = frame_seed(recipe["seed"], frame)
         timings, effects = render_frame(built, frame_dir, sizes, td["size"], render, seed, Path(state["tmp"]), fm,
-                                        td["supersample"], td["marking_share"], state["sensor_geometry"])
+                                        td["supersample"], td["marking_share"], state["sensor_geometry"], rig)
         w = built.weather
         meta = {
             "scene": task.scene, "frame": frame, "split": task.split, "family": recipe["family"],

@@ -117,3 +117,56 @@ def test_bad_quality_or_sensor_field_is_one_line(tmp_path, render, field):
     with pytest.raises(ConfigError) as e:
         load_config(_cfg(tmp_path, render))
     assert field in str(e.value) and "\n" not in str(e.value)
+
+
+def _ego_at(x: float) -> list:
+    """world-to-ego of an ego at (x, 0) looking along +x."""
+    m = np.eye(4)
+    m[0, 3] = -x
+    return m.tolist()
+
+
+def test_motion_flow_from_the_scene_moving_through_the_camera_model(front):
+    cam, theta, pp = front
+    rc = load_rig("configs/rigs/default.yaml")["front"]
+    h, w = theta.shape
+    # every pixel sees a point 6 m ahead of the front camera on its own ray (instance 1), the top-left
+    # corner the sky (instance 0)
+    rays, valid = cam.unproject(cam.pixel_grid().numpy())
+    rays = np.asarray(rays, float)
+    cam_pts = rays / np.linalg.norm(rays, axis=-1, keepdims=True) * 6.0
+    world = (np.concatenate([cam_pts, np.ones((h, w, 1))], -1) @ np.asarray(rc.cam_to_ego).T)[..., :3]  # ego = world at t
+    inst = np.ones((h, w), np.int64)
+    inst[:5, :5] = 0
+    motion = {"dt": 0.04, "world_to_ego": [_ego_at(-0.2), _ego_at(0.2)], "instances": {}}  # 10 m/s forward
+    flow = sensor.motion_flow(cam, rc.cam_to_ego, world.astype(np.float32), inst, motion)
+    assert flow.shape == (h, w, 2) and np.all(flow[:5, :5] == 0)
+    ok = np.asarray(valid, bool) & (theta < np.radians(60))
+    centre = np.array(pp)
+    v, u = np.mgrid[0:h, 0:w]
+    out = np.stack([u - centre[0], v - centre[1]], -1)
+    # driving forward, what the front camera sees streams out from the centre of expansion
+    assert (np.sum(flow[ok] * out[ok], -1) > 0).mean() > 0.95
+    # a vehicle moving with the ego (same motion) does not move in the image
+    same = {"dt": 0.04, "world_to_ego": motion["world_to_ego"],
+            "instances": {1: [np.linalg.inv(_ego_at(-0.2)).tolist(), np.linalg.inv(_ego_at(0.2)).tolist()]}}
+    assert np.abs(sensor.motion_flow(cam, rc.cam_to_ego, world.astype(np.float32), inst, same)).max() < 1e-2
+
+
+def test_motion_blur_smears_at_night_and_leaves_a_bright_day_alone(front):
+    _, theta, pp = front
+    h, w = theta.shape
+    flow = np.zeros((h, w, 2), np.float32)
+    flow[..., 0] = 300.0  # px/s along the rows
+    for level, blurred in ((5, True), (200, False)):
+        img = np.full((h, w, 3), level, np.uint8)
+        img[:, w // 2:] = min(255, level * 4)  # a vertical edge
+        p = {"motion_blur": True}
+        out = sensor.apply(img, p, theta, pp, flow)
+        assert 0.1 <= p["exposure_ms"] <= 33.0
+        if blurred:  # dark: a long exposure, 300 px/s x ~33 ms = ~10 px of smear across the edge
+            assert p["exposure_ms"] > 20
+            row = out[h // 2].astype(int)[:, 1]
+            assert row[w // 2 - 3] > level + 1 and row[w // 2 + 2] < level * 4 - 1
+        else:  # bright: about 1 ms, a third of a pixel: untouched
+            assert p["exposure_ms"] < 2 and np.array_equal(out, img)
