@@ -400,11 +400,17 @@ def parking_lot(recipe, rng) -> tuple[Layout, list[Edge]]:
 LOT_LAMP_W = 1500.0  # a lot's lamps stand closer together than a street's (4500 W): each dimmer
 
 
-def _lot_lights(lay: Layout, row_y, x0: float, bay_d: float, length: float, half_y: float, spacing: float = 25.0):
-    """Lamp posts of a parking lot (lots are lit at night): at both ends of every row of bays, in
-    line with the row (clear of the aisles the ego drives), and along both long sides, `spacing`
-    apart. Placed without drawing, so the layout's stream is unchanged."""
+def _lot_lights(lay: Layout, row_y, x0: float, bay_d: float, length: float, half_y: float, spacing: float = 25.0,
+                bay_w: float = 2.6, every: int = 8):
+    """Lamp posts of a parking lot (lots are lit at night): on the back line of every row of bays
+    at every `every`-th bay line (in the corner between bays, clear of the cars in them; back-to-back
+    rows share one line), at both ends of every row, in line with it (clear of the aisles the ego
+    drives), and along both long sides, `spacing` apart. Placed without drawing, so the layout's
+    stream is unchanged."""
     spots = [(sx * (abs(x0) + 2.0), side * (y + bay_d / 2), sx * math.pi / 2) for side, y in row_y for sx in (-1, 1)]
+    per_row = int(round(2 * abs(x0) / bay_w))
+    lines = sorted({round(side * (y + bay_d), 3) for side, y in row_y})
+    spots += [(x0 + b * bay_w, yl, 0.0) for yl in lines for b in range(every // 2, per_row, every)]
     n = max(1, int(length // spacing))
     spots += [((k + 0.5) * length / n - length / 2, s * (half_y + 0.8), math.pi if s > 0 else 0.0)
               for s in (-1, 1) for k in range(n)]  # arms toward the lot

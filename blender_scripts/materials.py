@@ -288,7 +288,7 @@ def _windows(m, b, night: bool = False):
         _emission(b, (1.0, 0.78, 0.5), 1.0)
         lit = nt.nodes.new("ShaderNodeMath")
         lit.operation = "MULTIPLY"
-        lit.inputs[1].default_value = 4.0
+        lit.inputs[1].default_value = 1.5
         nt.links.new(_ramp(nt, pane, [(0.0, (0.0,)), (0.615, (0.0,)), (0.62, (0.35,)), (0.8, (1.0,))]), lit.inputs[0])
         nt.links.new(lit.outputs[0], b.inputs["Emission Strength"])
 
@@ -319,7 +319,9 @@ def _car_paint(m, b):
 
 def _glass(m):
     """Window glass: thin (no refraction), tinted, see-through to the dark interior, reflecting more
-    at grazing angles. The label passes still stop at it (the view layer's alpha threshold is 0)."""
+    at grazing angles (a little more than glass does at any angle: our scenes lack the bright, busy
+    surroundings a real window mirrors, and a window that shows only the dark interior reads as a
+    black screen). The label passes still stop at it (the view layer's alpha threshold is 0)."""
     nt = m.node_tree
     nt.nodes.clear()
     out = nt.nodes.new("ShaderNodeOutputMaterial")
@@ -329,7 +331,7 @@ def _glass(m):
     gloss.inputs["Roughness"].default_value = 0.02
     gloss.inputs["Color"].default_value = (0.9, 0.9, 0.9, 1)
     fres = nt.nodes.new("ShaderNodeLayerWeight")
-    fres.inputs["Blend"].default_value = 0.35
+    fres.inputs["Blend"].default_value = 0.5
     mix = nt.nodes.new("ShaderNodeMixShader")
     nt.links.new(fres.outputs["Fresnel"], mix.inputs["Fac"])
     nt.links.new(clear.outputs["BSDF"], mix.inputs[1])

@@ -86,3 +86,22 @@ def test_awnings_and_balconies_stay_in_front_of_the_building_by_less_than_its_se
         assert m.vertices[:, 1].min() >= -(depth / 2 + 1.4)
         assert {MATERIAL_CLASSES[n] for n in m.mats} == {"building"}
     assert {"awning", "railing"} <= kinds
+
+
+def test_a_lots_lamp_posts_stand_clear_of_every_bay_and_light_its_rows():
+    r = validate_recipe({"family": "parking_lot", "seed": 3, "layout": {"bay_rows": 3, "bays_per_row": 24,
+                                                                        "occupancy": 0.95}}, "x")
+    lay = build_layout(r, scene_rng(3, 1))
+    poles = [o for o in lay.objects if o.name.startswith("lot_light")]
+    assert len(poles) >= 20 and len(lay.lamps) >= len(poles)
+    for o in poles:
+        px, py = o.location[:2]
+        for cx, cy, yaw, length, width in lay.parked:  # the largest car a bay takes, turned with it
+            c, s = math.cos(yaw), math.sin(yaw)
+            lx, ly = c * (px - cx) + s * (py - cy), -s * (px - cx) + c * (py - cy)
+            assert max(abs(lx) - length / 2, abs(ly) - width / 2) > 0.09 + 0.01, (o.name, px, py)
+        assert abs(py + 1.5) > 3.5 + 0.09, "a pole in the aisle the ego drives"
+    # every parked car has a lamp within 15 m
+    bulbs = np.array([b[:2] for b in lay.lamps])
+    far = [p for p in lay.parked if np.linalg.norm(bulbs - p[:2], axis=1).min() > 15]
+    assert not far
