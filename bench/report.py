@@ -21,7 +21,7 @@ DATASET_FRAMES = 200
 def run(frames: int = FRAMES, scene: str = SCENE) -> dict:
     from dataset_tools.fuse import fuse_dataset
     from dataset_tools.generation.config import REPO, load_config
-    from dataset_tools.generation.driver import run as generate
+    from dataset_tools.generation.driver import render as generate
     from dataset_tools.labels.fusion import FusionConfig
     from dataset_tools.qa.report import build_report, report_size
 

@@ -16,7 +16,6 @@ from dataclasses import asdict, dataclass, field, make_dataclass
 import numpy as np
 
 from common.errors import ConfigError
-from common.files import read_yaml
 from common.schema import List, Mapping, Name, Num, Section, Str
 
 from ..format.layout import DatasetError, FrameFiles
@@ -68,7 +67,8 @@ _FusionFields = make_dataclass("_FusionFields", [
 @dataclass
 class FusionConfig(_FusionFields):
     """Label fusion settings: a field per FUSION_SCHEMA entry (the `labels:` section of a dataset
-    config), with its default. `from_dict`/`load` validate; the constructor takes values as given."""
+    config), with its default. `from_dict` validates (a dataset config's file is read by
+    generation.config: `load_config(p)["labels"]`, `load_labels(p)`); the constructor takes values as given."""
 
     def __post_init__(self):
         self.ground_classes, self.vehicle_classes = tuple(self.ground_classes), tuple(self.vehicle_classes)
@@ -84,11 +84,6 @@ class FusionConfig(_FusionFields):
         except ValueError as exc:
             raise ConfigError(f"{source}: class_map: {exc}") from None
         return cls(**cfg)
-
-    @classmethod
-    def load(cls, path) -> "FusionConfig":
-        d = read_yaml(path) or {}
-        return cls.from_dict(d.get("labels", {}) if isinstance(d, dict) else {}, f"{path}: labels")
 
     def to_dict(self) -> dict:
         return asdict(self)

@@ -23,8 +23,8 @@ any of its cells has one (its label is per vehicle). Reported per frame and per 
                   (the pixel footprints of the cameras that see the cell, summed over the p(o)
                   kernel, >= --many * tau) that are labelled invisible (p(o) < 0.5)
 
-The result goes to <dataset>/audit.json (atomically); exit 1 when the overall --metric (default
-unexplained) is above --threshold (default 0.0005 of the visible cells).
+The result goes to <dataset>/audit.json (atomically); exit EXIT_PROBLEMS (1) when the overall
+--metric (default unexplained) is above --threshold (default 0.0005 of the visible cells).
 """
 
 from __future__ import annotations
@@ -34,7 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
-from common.cli import ArgumentParser
+from common.cli import ArgumentParser, print_problems
 from common.errors import InputError
 from common.files import write_json_atomic
 
@@ -44,6 +44,7 @@ from ..format.meta import read_meta
 from ..format.passes import read_frame_passes, read_topdown
 from ..format.reader import DatasetIndex
 from ..labels import visibility as V
+from ..generation.config import load_labels
 from ..labels.fusion import FusionConfig, effective_tau, ego_box, ego_mask
 
 RINGS = (("0-10", 0.0, 10.0), ("10-20", 10.0, 20.0), ("20-25", 20.0, math.inf))
@@ -269,13 +270,22 @@ def main(argv=None) -> int:
     ap.add_argument("--json", help="also write the report here")
     ap.add_argument("--no-progress", action="store_true")
     args = ap.parse_args(argv)
-    cfg = FusionConfig.load(args.config) if args.config else FusionConfig()
-    r = audit_dataset(args.dataset, cfg, args.threshold, args.many, args.metric, not args.no_pixels,
-                      progress=not args.no_progress)
-    path = write_audit(args.dataset, r)
-    if args.json:
-        write_json_atomic(Path(args.json), r)
+    cfg = load_labels(args.config) if args.config else FusionConfig()
+    return print_problems(run_audit(args.dataset, cfg, args.threshold, args.many, args.metric, not args.no_pixels,
+                                    progress=not args.no_progress, json_path=args.json))
+
+
+def run_audit(root, cfg: FusionConfig, threshold: float = THRESHOLD, many: float = 2.0, metric: str = "unexplained",
+              pixels: bool = True, progress: bool = True, json_path=None) -> list[str]:
+    """The audit stage: audit_dataset, written to <root>/audit.json (and `json_path`), its table
+    printed; the problems: one line when the overall `metric` is above `threshold`."""
+    r = audit_dataset(root, cfg, threshold, many, metric, pixels, progress=progress)
+    path = write_audit(root, r)
+    if json_path:
+        write_json_atomic(Path(json_path), r)
     print(format_report(r))
-    print(f"{'ok' if r['passed'] else 'FAIL'}: {args.metric} {r['overall'][args.metric]:.4%} of the visible cells "
-          f"(threshold {args.threshold:.4%}); written {path}")
-    return 0 if r["passed"] else 1
+    line = (f"{metric} {r['overall'][metric]:.4%} of the visible cells (threshold {threshold:.4%}); written {path}")
+    if r["passed"]:
+        print(f"ok: {line}")
+        return []
+    return [f"audit: FAIL: {line}"]

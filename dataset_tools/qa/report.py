@@ -506,7 +506,7 @@ def report_size(out: Path) -> int:
 
 
 def main(argv=None) -> int:
-    from common.cli import ArgumentParser
+    from common.cli import ArgumentParser, print_problems
 
     ap = ArgumentParser(prog="python -m dataset_tools report", description=__doc__.splitlines()[0])
     ap.add_argument("dataset", type=Path)
@@ -516,7 +516,14 @@ def main(argv=None) -> int:
     ap.add_argument("--force", action="store_true", help="rebuild every output")
     ap.add_argument("--no-progress", action="store_true")
     a = ap.parse_args(argv)
+    return print_problems(run_report(a.dataset, a.out, a.frames_per_scene, a.threshold, not a.no_progress, a.force))
+
+
+def run_report(root, out=None, frames_per_scene: int | None = None, threshold: float = 0.97, progress: bool = True,
+               force: bool = False) -> list[str]:
+    """The report stage: build_report and one line saying where it is; the problems (none: the
+    report shows what it finds, it does not judge)."""
     t0 = time.perf_counter()
-    index = build_report(a.dataset, a.out, a.frames_per_scene, a.threshold, not a.no_progress, a.force)
+    index = build_report(root, out, frames_per_scene, threshold, progress, force)
     print(f"report: {index} ({report_size(index.parent) / 1e6:.1f} MB, {time.perf_counter() - t0:.1f} s)")
-    return 0
+    return []
