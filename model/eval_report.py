@@ -108,6 +108,32 @@ def frame_picture(path: Path, images: dict, truth, vis, pred, pred_vis, class_na
     _save_fig(fig, path)
 
 
+def prediction_picture(path: Path, images: dict, classes, visibility, grid, class_names, title: str) -> None:
+    """predict.py's picture: the images, the predicted classes and p(o) over the metric grid
+    (metres, forward up, left left)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.patches import Patch
+
+    fig = plt.figure(figsize=(4 * max(4, len(images)), 8))
+    gs = fig.add_gridspec(2, max(4, len(images)), height_ratios=[1, 1.8])
+    camera_row(fig, gs, images)
+    extent = (grid.y_max, grid.y_min, grid.x_min, grid.x_max)  # columns run from +y (left) to -y
+    for j, (img, t) in enumerate([(colorize_train(classes), "predicted classes"), (visibility, "predicted visibility p(o)")]):
+        ax = fig.add_subplot(gs[1, 2 * j: 2 * j + 2])
+        ax.imshow(img, extent=extent, cmap="magma", vmin=0, vmax=1) if img.ndim == 2 else ax.imshow(img, extent=extent)
+        ax.plot([0], [0], marker="^", color="cyan", ms=6)
+        ax.set_xlabel("y (m, left is +)")
+        ax.set_ylabel("x (m, forward)")
+        ax.set_title(t, fontsize=9)
+    fig.legend(handles=[Patch(facecolor=TRAIN_PALETTE[i] / 255, edgecolor="black", label=n) for i, n in enumerate(class_names) if i > 0],
+               loc="lower center", ncol=len(class_names) - 1, fontsize=9)
+    fig.suptitle(title, fontsize=10)
+    write_figure_atomic(fig, path)
+
+
 def confusion_picture(path: Path, cm: np.ndarray, class_names, title: str):
     import matplotlib
 

@@ -19,7 +19,7 @@ from model.config import ConfigError, validate
 from model.frustum import camera_point_cells, depth_bins, feature_camera
 from model.losses import class_weights, occlusion_loss, semantic_loss
 from model.metrics import BevMetrics, confusion
-from model.predict import decode
+from model.inference import decode
 from model.splat import splat
 
 GRID = BevGrid(res=0.25)
@@ -307,6 +307,13 @@ def test_an_older_checkpoint_is_upgraded_in_one_place(tmp_path):
     save_checkpoint(path, {"config": old, "rig": rig.to_dict(), "model": model.state_dict()})
     loaded, cfg2, ck = load_checkpoint(path, expect_config=cfg)
     assert cfg2["model"]["trunk"] == "scratch" and cfg2["data"]["rectify"] == "none" and ck["num_classes"] == NUM_CLASSES == 5
+    assert ck["class_names"] == ["invalid", "vehicle", "lane_marking", "street", "background"], "old: the default classes"
+    mine = ["invalid", "ground", "paint", "car", "other"]
+    save_checkpoint(tmp_path / "new.pt", {"config": cfg, "rig": rig.to_dict(), "model": model.state_dict(), "class_names": mine})
+    assert load_checkpoint(tmp_path / "new.pt")[2]["class_names"] == mine, "a checkpoint carries its class names"
+    save_checkpoint(tmp_path / "bad.pt", {"config": cfg, "rig": rig.to_dict(), "model": model.state_dict(), "class_names": mine[:3]})
+    with pytest.raises(CheckpointError, match=r"bad.pt: class_names: must be a list of 5 names"):
+        load_checkpoint(tmp_path / "bad.pt")
     x = torch.rand(1, 4, 3, 40, 64)
     model.eval(), loaded.eval()
     assert torch.equal(model(x)["semantic"], loaded(x)["semantic"])
