@@ -265,6 +265,7 @@ def test_the_makefiles_default_chain_agrees_with_itself():
     make = Path("Makefile").read_text()
     preset = re.search(r"^PRESET \?= (\S+)$", make, re.M).group(1)
     config = re.search(r"^CONFIG \?= (\S+)$", make, re.M).group(1)
+    assert config == __import__("train").DEFAULT_CONFIG, "one default training config: train.py's is the Makefile's"
     cfg = load_config(config)
     assert cfg["data"]["root"] == f"data/{preset}", (config, cfg["data"]["root"], preset)
     splits = {s["split"] for s in load_dataset_config(f"configs/dataset/{preset}.yaml")["scenes"]}

@@ -143,7 +143,7 @@ def sample_recipes(spec: dict, source: str = "sample", families=None, weather=No
 
 def buildable(d: dict, source: str) -> dict:
     """The validated recipe, made one whose layout builds: overpasses are drawn only where one fits
-    (a short block of a wide street has no room between its junctions: issue 34, `min() arg is an
+    (a short block of a wide street has no room between its junctions: `min() arg is an
     empty sequence` in the layout builder). Draws nothing from the scene's stream, so the other
     recipes of a block stay as they were."""
     r = validate_recipe(d, source)
