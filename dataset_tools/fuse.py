@@ -107,7 +107,7 @@ def fuse_dataset(root, cfg: FusionConfig, workers: int | None = None, force: boo
             if err:
                 failed[d] = err
             bar.update(1)
-    return [f"fuse: {err}" for err in failed.values()]
+    return [f"error: {err}" for err in failed.values()]
 
 
 def main(argv=None) -> int:

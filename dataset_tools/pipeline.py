@@ -20,6 +20,7 @@ not (the report shows it), but the exit code is then EXIT_PROBLEMS.
 
 from __future__ import annotations
 
+from contextlib import ExitStack
 from pathlib import Path
 
 from common.backend import add_backend_args
@@ -57,21 +58,24 @@ def build_dataset(cfg: dict | None, out, backend: str = "local", workers: int | 
                   address: str | None = None, threads: int | None = None, parts=None, progress: bool = True) -> int:
     """Render `cfg` (load_config) into `out` (or merge `parts` into it), then draw the contact sheets,
     fuse, audit and report; the exit code. `cfg` may be None with `parts` (no check that every
-    frame is there; default fusion). Holds `out`'s lock for the whole run."""
-    out = output_dir(out)
+    frame is there; default fusion). Holds `out`'s lock for the whole run (with `parts`, from after
+    the merge, which checks the parts first and writes nothing when they do not fit)."""
+    out = Path(out) if parts else output_dir(out)
     labels = cfg["labels"] if cfg else FusionConfig()
     stages = {
         "render": ((lambda: merge_parts(cfg, out, parts, progress)) if parts
                    else (lambda: render(cfg, out, (0, 1), workers, progress, backend, address, threads or 1))),
         "contact_sheets": lambda: contact_sheets(out),
-        "fuse": lambda: [f"error: {p}" for p in fuse_dataset(out, labels, workers, progress=progress, backend=backend,
-                                                              address=address)],
+        "fuse": lambda: fuse_dataset(out, labels, workers, progress=progress, backend=backend, address=address),
         "audit": lambda: run_audit(out, labels, progress=progress),
         "report": lambda: run_report(out, progress=progress),
     }
-    result = 0
-    with hold_lock(out):  # a second writer on this data set is refused
+    result, locked = 0, False
+    with ExitStack() as held:
         for stage in STAGES:
+            if not locked and not (parts and stage == "render"):  # a second writer on this data set is refused
+                held.enter_context(hold_lock(out))
+                locked = True
             print(f"dataset: {'merge' if parts and stage == 'render' else stage}", flush=True)
             if print_problems(stages[stage]()):
                 if stage in FATAL:  # the stage said why; run again to resume
