@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .shapes import MeshData
+from .meshes import MeshData
 from .vehicles import BELT, KIND_STYLES, build_vehicle
 
 # kind -> (length, width, height) nominal, metres; wheel radius

@@ -7,7 +7,7 @@ frame's camera-view targets (`camera_targets.npy`, format.camera_targets) from i
 Resumable: a frame whose three label PNGs look whole is skipped (each PNG is written atomically,
 the visibility last); a label that is missing, empty, cut short or of the wrong size
 (`format.labels.label_damage`: header, end and size, no decoding) is redone, with one notice line;
-`--force` redoes every frame. Per-frame work is `labels.fusion.fuse_frame`, run through
+`--force` redoes every frame. Per-frame work is `labels.label_fusion.fuse_frame`, run through
 common.backend: a local process pool (`--workers` processes), or Ray tasks in batches (`--backend
 ray`; `--workers` then caps the batches running at once).
 """
@@ -27,8 +27,8 @@ from .format.index import build_index, write_index
 from .format.labels import label_damage, write_labels
 from .format.layout import DatasetError, FrameFiles, Manifest
 from .format.meta import read_meta
-from .generation.config import load_labels
-from .labels.fusion import FusionConfig, fuse_frame
+from .generation.dataset_config import load_labels
+from .labels.label_fusion import FusionConfig, fuse_frame
 
 
 def fuse_one(frame_dir: str, cfg: FusionConfig):

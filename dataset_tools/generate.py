@@ -1,7 +1,7 @@
 """Render a data set: `python -m dataset_tools generate --config configs/dataset/<preset>.yaml --out DIR`.
 
 The render stage of dataset_tools.pipeline alone: `generation.driver.render` (planning, Blender
-workers, manifest) on the config checked by `generation.config`. The contact sheets are the
+workers, manifest) on the config checked by `generation.dataset_config`. The contact sheets are the
 pipeline's next stage (`python -m dataset_tools contact_sheet DIR`, or the whole `dataset`).
 Bad input: one line, exit 2; scenes that fail: one line each, exit 1. Run again after an
 interruption to resume. `--backend ray` renders on a Ray cluster (common.backend, docs/scaling.md).
@@ -17,7 +17,7 @@ from common.errors import ConfigError
 from common.files import output_dir
 from common.lock import hold_lock
 
-from .generation.config import load_config
+from .generation.dataset_config import load_config
 from .generation.driver import parse_shard, render
 
 

@@ -3,7 +3,7 @@
 
 For clusters without a shared file system (`generate --out` per node) and Slurm job arrays
 (`generate --shard i/N` per array task). `--config` also checks that no frame of the config is
-missing and sets the fusion. Library: dataset_tools.format.merge; the stages after it:
+missing and sets the fusion. Library: dataset_tools.format.merge_parts; the stages after it:
 dataset_tools.pipeline. Problems: one line each, exit 1 (EXIT_PROBLEMS), nothing written.
 """
 
@@ -14,7 +14,7 @@ from pathlib import Path
 from common.backend import add_backend_args
 from common.cli import ArgumentParser, require_positive, run_cli
 
-from .generation.config import load_config
+from .generation.dataset_config import load_config
 from .pipeline import build_dataset
 
 

@@ -7,11 +7,11 @@ apart), contact sheets, fuse, audit, report.
     build_dataset(load_config("configs/dataset/small.yaml"), "data/small")   # what `make dataset` runs
     build_dataset(cfg, "data/paper", parts=["parts/0", "parts/1"])           # what `merge` runs
 
-The dataset config is loaded once (generation.config.load_config: its `labels:` section included,
+The dataset config is loaded once (generation.dataset_config.load_config: its `labels:` section included,
 so a mistake anywhere in it stops before anything renders) and handed to each stage, a library
 function that returns its problems (one line each): generation.driver.render,
 qa.contact_sheet.make_sheets, fuse.fuse_dataset (labels, then the camera-view targets),
-qa.audit.run_audit, qa.report.run_report. The commands `generate`, `contact_sheet`, `fuse`,
+qa.audit.run_audit, qa.html_report.run_report. The commands `generate`, `contact_sheet`, `fuse`,
 `audit` and `report` are thin parsers over the same functions, so running the stages by hand
 gives the same files. Every stage resumes: run it again after an interruption. A render or merge
 that fails, or frames that cannot be fused, stop the pipeline; an audit above its threshold does
@@ -28,14 +28,14 @@ from common.cli import EXIT_PROBLEMS, ArgumentParser, print_problems, require_po
 from common.files import output_dir
 from common.lock import hold_lock
 
-from .format.merge import merge
+from .format.merge_parts import merge
 from .fuse import fuse_dataset
-from .generation.config import load_config
+from .generation.dataset_config import load_config
 from .generation.driver import plan, render
-from .labels.fusion import FusionConfig
+from .labels.label_fusion import FusionConfig
 from .qa.audit import run_audit
 from .qa.contact_sheet import make_sheets
-from .qa.report import run_report
+from .qa.html_report import run_report
 
 STAGES = ("render", "contact_sheets", "fuse", "audit", "report")
 FATAL = {"render", "fuse"}  # their problems stop the pipeline; the audit's are reported, not fatal

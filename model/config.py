@@ -90,7 +90,7 @@ SCHEMA = Section({
         "visibility_weighting": Bool(default=True),
         "occlusion_weight": Num(0.0, 1e6, default=1.0),
         "occlusion_target": Str(choices=("soft", "binary"), default="soft"),
-        # camera-view supervision from the rendered passes (model.camera_targets); 0: off
+        # camera-view supervision from the rendered passes (model.feature_targets); 0: off
         "depth_weight": Num(0.0, 1e6, default=0.0),  # cross entropy of the lift's depth bins
         "camera_seg_weight": Num(0.0, 1e6, default=0.0),  # a 1x1 head on the context features, training only
         "dice_weight": Num(0.0, 1e6, default=0.0),  # soft Dice over the BEV classes (thin classes); 0: off

@@ -24,7 +24,7 @@ from dataset_tools.format.reader import DatasetIndex, downsample_labels, read_fr
 from geometry.bev import BevGrid
 
 from .augment import ColorJitter, random_transform, warp_image
-from .camera_targets import camera_targets, train_lut
+from .feature_targets import camera_targets, train_lut
 from .rectified import model_view
 
 

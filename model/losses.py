@@ -10,7 +10,7 @@ target by default; `binary` thresholds it at 0.5), mean over cells, then over sa
 total (eq. 7): semantic + lambda * occlusion.
 Camera-view terms (off by default): + depth_weight * the cross entropy of the lift's
 depth bins against the bin the pixel's ray hits, + camera_seg_weight * the cross entropy of the
-camera-view semantic head (model.camera_targets); each a mean over a sample's valid feature pixels,
+camera-view semantic head (model.feature_targets); each a mean over a sample's valid feature pixels,
 then over samples. With both weights 0 they are not computed and the total is eq. 7's exactly.
 Dice (off by default): + dice_weight * (1 - mean soft Dice over the classes), for thin classes.
 """

@@ -3,7 +3,7 @@
 import pytest
 
 from common.errors import ConfigError as FusionConfigError
-from dataset_tools.labels.fusion import FusionConfig
+from dataset_tools.labels.label_fusion import FusionConfig
 from dataset_tools.format.reader import DatasetError, DatasetIndex
 from geometry.cameras import CameraError, camera_from_dict
 
@@ -40,7 +40,7 @@ def test_bad_labels_section_stops_the_dataset_before_anything_renders(tmp_path, 
     import yaml
 
     from common.cli import EXIT_BAD_INPUT
-    from dataset_tools.generation.config import load_config
+    from dataset_tools.generation.dataset_config import load_config
 
     cfg = tmp_path / "bad.yaml"
     cfg.write_text(yaml.safe_dump({"fisheye_size": [64, 40], "topdown": {"size": 64}, "render": {"quality": "draft"},

@@ -17,7 +17,7 @@ from dataset_tools.labels.classes import CLASS_IDS, class_lut
 from geometry.cameras import camera_from_dict
 from geometry.rig import Rig, RigCamera
 from model.augment import ViewTransform, base_transform, transform_camera, warp_image
-from model.camera_targets import EGO, camera_targets as feature_targets, distance_bin, feature_passes, source_pixels
+from model.feature_targets import EGO, camera_targets as feature_targets, distance_bin, feature_passes, source_pixels
 from model.config import validate
 from model.frustum import Frustum, feature_camera
 

@@ -259,7 +259,7 @@ def test_every_shipped_config_validates():
 def test_the_makefiles_default_chain_agrees_with_itself():
     """`make dataset` writes data/$(PRESET); `make train`'s default config must train on that folder
     and validate on a split the preset has."""
-    from dataset_tools.generation.config import load_config as load_dataset_config
+    from dataset_tools.generation.dataset_config import load_config as load_dataset_config
     from model.config import load_config
 
     make = Path("Makefile").read_text()

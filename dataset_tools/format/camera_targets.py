@@ -6,7 +6,7 @@
                           0 where the ray hits nothing (sky, outside the lens) or beyond 655.34 m
         semantic_<name>   uint8, fine semantic class (the EXR `semantic` pass; `ego` = the car's body)
 
-The model's loader (`model.camera_targets`) needs only these two passes of the EXR, at a few
+The model's loader (`model.feature_targets`) needs only these two passes of the EXR, at a few
 hundred pixels per camera (one per feature pixel). They are cut to 3 bytes a pixel (a fifth of the
 EXR) and left uncompressed, so `read_camera_targets` memory-maps the file and a sample reads only
 the pixels it samples (a compressed file would cost a whole decompression per sample).

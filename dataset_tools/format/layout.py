@@ -6,13 +6,13 @@ package, `format.*`, where a file has a format of its own):
       manifest.jsonl            one JSON line per finished frame, appended last, by the render driver
                                 only (Manifest; generation.driver.render)
       index.json                splits -> frames, class names, grid, rig (format.index; the fuse stage,
-                                `python -m dataset_tools index`, format.merge)
+                                `python -m dataset_tools index`, format.merge_parts)
       recipes/<scene>.yaml      the checked recipe each scene was rendered from (RECIPES_DIR;
-                                generation.driver.write_recipes, copied by format.merge)
+                                generation.driver.write_recipes, copied by format.merge_parts)
       worker_errors.log         Python traces of scenes that failed to build (WorkerErrorLog;
                                 generation.driver.render)
-      audit.json                line-of-sight audit of the labels (format.audit; qa.audit)
-      report/                   the static HTML QA report (REPORT_DIR; qa.report)
+      audit.json                line-of-sight audit of the labels (format.audit_file; qa.audit)
+      report/                   the static HTML QA report (REPORT_DIR; qa.html_report)
       <scene>/contact_sheet.png one picture of the scene's first frame (CONTACT_SHEET; qa.contact_sheet)
       <scene>/<frame:06d>/      one frame (frame_dir_name), written by the Blender worker
                                 (blender_scripts.worker) but for labels/ and camera_targets.npy:

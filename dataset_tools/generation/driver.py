@@ -23,7 +23,7 @@ from common.lifetime import DieWithParent
 from common.worker_protocol import RenderTask, read_message
 
 from ..format.layout import RECIPES_DIR, Manifest, WorkerErrorLog, frame_dir_name
-from .config import REPO
+from .dataset_config import REPO
 
 
 def plan(cfg: dict, shard: tuple[int, int]) -> list[tuple[dict, int]]:

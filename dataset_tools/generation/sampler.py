@@ -3,7 +3,7 @@
     recipes = sample_recipes({"count": 200, "seed": 1, "families": ["highway"], "weather": None})
 
 A dataset config asks for them with `- {sample: {count: 200, seed: 1, ...}, split: train}`
-(generation.config). A test block with `training_layouts: true` draws each scene's layout from the
+(generation.dataset_config). A test block with `training_layouts: true` draws each scene's layout from the
 config's training scenes instead, under new weather, traffic and ego drive (`relit_recipes`: the
 paper's "easy" split). Scene k of a block is drawn from its own stream `(STREAM, seed, k)`, so the
 same seed gives the same recipes, growing `count` keeps the first scenes, and blocks with different

@@ -15,7 +15,7 @@ traffic seed.
 
 Relative paths (rig, recipes) are looked up as given (from the working directory), then beside
 the config, then in the repository. The `labels:` section is the label fusion's settings: it is
-checked at load by dataset_tools.labels.fusion.FusionConfig (`cfg["labels"]` is one), so a mistake
+checked at load by dataset_tools.labels.label_fusion.FusionConfig (`cfg["labels"]` is one), so a mistake
 there stops a data set before anything renders; `load_labels` reads only that section (what `fuse
 --config` and `audit --config` take).
 """
@@ -29,7 +29,7 @@ from common.files import read_yaml
 from common.schema import Any, Bool, List, Name, Num, Section, Str, deep_merge
 
 from ..format.layout import LABEL_DIR, RECIPES_DIR, REPORT_DIR, SPLITS
-from ..labels.fusion import FusionConfig
+from ..labels.label_fusion import FusionConfig
 from .recipe import FAMILIES, WEATHER_PRESETS, load_recipe
 from .sampler import SAMPLE, relit_recipes, sample_recipes
 from .sensor import EFFECTS, OFF as SENSOR_OFF, SENSOR
