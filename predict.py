@@ -15,35 +15,27 @@ is taken as a resize of it; one that cannot be, such as 1 x 1, is refused). What
 the rig became (model, exact or fitted with its residual) is printed once.
 
 Writes OUT/<frame>.npz (`semantic` uint8 class ids 1..K-1, `visibility` float32 p(o),
-`occlusion_logit` float32, on the model's BEV grid) and OUT/<frame>.png. On a frame of the training
-rig it computes what eval.py computes (tests/test_predict.py).
+`occlusion_logit` float32, on the model's BEV grid; model.inference.write_prediction, the writer
+eval.py's predictions share) and OUT/<frame>.png, its classes named by the checkpoint. On a frame
+of the training rig it computes what eval.py computes (tests/test_predict.py). The library behind
+this command is model.inference (RigModel); this file is only its command line.
 """
 
 from __future__ import annotations
 
-import io
 import sys
 from pathlib import Path
 
-import numpy as np
 import torch
 
 from common.cli import ArgumentParser, run_cli
-from common.errors import InputError
-from common.files import output_dir, write_bytes_atomic
-from dataset_tools.stitch import IMAGE_SUFFIXES, image_paths, read_image, rig_for
-from dataset_tools.stitch import rig_of_images as _rig_of_images
-from geometry.rig import Rig, load_rig
-from model.augment import warp_image
+from common.files import output_dir
+from dataset_tools.stitch import IMAGE_SUFFIXES, image_paths, read_image, rig_for, rig_of_images
+from geometry.rig import load_rig
 from model.checkpoint import in_precision, load_checkpoint
-from model.frustum import Frustum
-from model.predict import Prediction, predict
-from model.rectified import model_rig, rectifier
+from model.eval_report import prediction_picture
+from model.inference import PredictError, RigModel, in_model_order, write_prediction
 from model.run_dir import checkpoint_path
-
-
-class PredictError(InputError):
-    pass
 
 
 def frame_folders(root: Path) -> list[Path]:
@@ -63,98 +55,6 @@ def frame_folders(root: Path) -> list[Path]:
     if not has_images(root):
         raise PredictError(f"{root}: no images, and no sub-folders with images")
     return [root]
-
-
-def in_model_order(rig: Rig, model_names, source: str, cameras: list[str] | None = None) -> Rig:
-    """The rig's cameras in the model's camera order: matched by name, or, where the rig names them
-    otherwise, as `cameras` (--cameras: the rig's cameras in the model's order) says. Refused, naming
-    `source` (the rig file or option), where the number of cameras or the names do not fit."""
-    model_names = list(model_names)
-    if len(rig) != len(model_names):
-        raise PredictError(f"{source}: {len(rig)} cameras ({', '.join(rig.names)}), the model was trained with "
-                           f"{len(model_names)} ({', '.join(model_names)})")
-    if cameras is None:
-        if set(rig.names) != set(model_names):
-            raise PredictError(f"{source}: cameras {', '.join(rig.names)} are not the model's ({', '.join(model_names)}); "
-                               f"give --cameras with the rig's cameras in the model's order")
-        cameras = model_names
-    elif sorted(cameras) != sorted(rig.names):
-        raise PredictError(f"--cameras: {','.join(cameras)} must name each camera of {source} once ({', '.join(rig.names)})")
-    return Rig([rig[n] for n in cameras], rig.name, rig.origins)
-
-
-class RigModel:
-    """A trained model and the lift geometry of one rig: the images of a frame -> Prediction."""
-
-    def __init__(self, model, cfg: dict, train_rig_dict: dict, rig, source: str = "--rig", cameras: list[str] | None = None):
-        self.model, self.cfg = model, cfg
-        rig = in_model_order(rig, model.camera_names, source, cameras)
-        self.rig = rig
-        self.rectify = rectifier(rig, cfg)
-        self.frustum = Frustum(model_rig(rig, cfg), cfg)
-        # the training rig itself: the model's own cached geometry, as eval uses it
-        self.geometry = None if rig.to_dict() == train_rig_dict else tuple(t[None] for t in self.frustum.nominal)
-
-    def inputs(self, images: dict) -> torch.Tensor:
-        out = []
-        for rc, t, src in zip(self.frustum.rig, self.frustum.nominal_transforms(), self.rig):
-            img = images[src.name]
-            if self.rectify:
-                img = self.rectify(src.name, img)
-            out.append(warp_image(img, rc.camera, t))
-        return (torch.from_numpy(np.stack(out)).permute(0, 3, 1, 2).float() / 255.0)[None]
-
-    @torch.no_grad()
-    def __call__(self, images: dict) -> Prediction:
-        batch = {"images": self.inputs(images)}
-        if self.geometry is not None:
-            batch["point_cell"], batch["intrinsics"] = self.geometry
-        self.model.eval()
-        return predict(self.model, batch)
-
-
-def rig_of_images(rig: Rig, images: dict, paths: dict | None = None) -> Rig:
-    """The rig with each camera resized to its image (an image of another size than its calibration
-    is a resize of it: its camera goes with it; one that cannot be is refused, naming the image)."""
-    return _rig_of_images(rig, images, paths)
-
-
-def save_prediction(path: Path, pred: Prediction) -> None:
-    buf = io.BytesIO()
-    np.savez_compressed(buf, semantic=pred.classes[0].numpy().astype(np.uint8), visibility=pred.visibility[0].numpy().astype(np.float32),
-                        occlusion_logit=pred.occlusion_logit[0].numpy().astype(np.float32))
-    write_bytes_atomic(path, buf.getvalue())
-
-
-def picture(path: Path, images: dict, pred: Prediction, grid, class_names, title: str) -> None:
-    """The images, the prediction and p(o) over the metric grid (metres, forward up, left left)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    from matplotlib.patches import Patch
-
-    from common.files import write_figure_atomic
-    from dataset_tools import TRAIN_PALETTE, colorize_train
-    from model.eval_report import camera_row
-
-    fig = plt.figure(figsize=(4 * max(4, len(images)), 8))
-    gs = fig.add_gridspec(2, max(4, len(images)), height_ratios=[1, 1.8])
-    camera_row(fig, gs, images)
-    extent = (grid.y_max, grid.y_min, grid.x_min, grid.x_max)  # columns run from +y (left) to -y
-    for j, (img, t) in enumerate([(colorize_train(pred.classes[0].numpy()), "predicted classes"),
-                                  (pred.visibility[0].numpy(), "predicted visibility p(o)")]):
-        ax = fig.add_subplot(gs[1, 2 * j: 2 * j + 2])
-        ax.imshow(img, extent=extent, cmap="magma", vmin=0, vmax=1) if img.ndim == 2 else ax.imshow(img, extent=extent)
-        ax.plot([0], [0], marker="^", color="cyan", ms=6)
-        ax.set_xlabel("y (m, left is +)")
-        ax.set_ylabel("x (m, forward)")
-        ax.set_title(t, fontsize=9)
-    fig.legend(handles=[Patch(facecolor=TRAIN_PALETTE[i] / 255, edgecolor="black", label=n) for i, n in enumerate(class_names) if i > 0],
-               loc="lower center", ncol=len(class_names) - 1, fontsize=9)
-    fig.suptitle(title, fontsize=10)
-    write_figure_atomic(fig, path)
-    plt.close(fig)
 
 
 def main(argv=None) -> int:
@@ -179,10 +79,7 @@ def main(argv=None) -> int:
     model, cfg, ckpt = load_checkpoint(checkpoint_path(a.checkpoint))
     if a.precision:
         cfg = in_precision(model, cfg, a.precision)
-    from dataset_tools import TRAIN_CLASSES
-
-    class_names = list(TRAIN_CLASSES)[: ckpt["num_classes"]]
-    rig_models: dict = {}
+    class_names = ckpt["class_names"]
     given = load_rig(a.rig) if a.rig else None
     described = False
     for frame in frames:
@@ -196,15 +93,13 @@ def main(argv=None) -> int:
         paths = image_paths(frame, rig.names)
         images = {n: read_image(q) for n, q in paths.items()}
         rig = rig_of_images(rig, images, paths)
-        key = str(rig.to_dict())
-        if key not in rig_models:
-            rig_models[key] = RigModel(model, cfg, ckpt["rig"], rig, source, cameras)
-        rm = rig_models[key]
+        rm = RigModel(model, cfg, ckpt["rig"], rig, source, cameras)  # its geometry cached by calibration (model_view)
         pred = rm(images)
         name = frame.name
-        save_prediction(out / f"{name}.npz", pred)
+        write_prediction(out / f"{name}.npz", pred)
         if not a.no_pictures:
-            picture(out / f"{name}.png", images, pred, rm.frustum.grid, class_names, f"{name}: {Path(a.checkpoint).name} on rig '{rig.name}'")
+            prediction_picture(out / f"{name}.png", images, pred.classes[0].numpy(), pred.visibility[0].numpy(),
+                               rm.frustum.grid, class_names, f"{name}: {Path(a.checkpoint).name} on rig '{rig.name}'")
         print(f"{frame}: written {out / name}.npz" + ("" if a.no_pictures else " and .png"), file=sys.stderr)
     return 0
 

@@ -1,6 +1,6 @@
 """Train the LSS-fisheye BEV model.
 
-    python train.py --config configs/train/cpu_default.yaml [--out runs/cpu_default] [--set train.lr=1e-4 ...]
+    python train.py [--config configs/train/cpu_medium.yaml] [--out runs/cpu_medium] [--set train.lr=1e-4 ...]
     torchrun --nproc_per_node 2 train.py --config ...          # DDP (gloo on CPU, nccl on GPU)
 
 A run directory holds latest.pt, best.pt (best validation mIoU) and TensorBoard logs. Running the
@@ -23,9 +23,12 @@ from model.run_dir import RunDir
 from model.training import train
 
 
+DEFAULT_CONFIG = "configs/train/cpu_medium.yaml"  # the Makefile's CONFIG (tests/test_model.py holds them equal)
+
+
 def main(argv=None) -> int:
     p = ArgumentParser(prog="train.py", description="Train the LSS-fisheye BEV model.")
-    p.add_argument("--config", default="configs/train/cpu_default.yaml")
+    p.add_argument("--config", default=DEFAULT_CONFIG, help=f"training config (default {DEFAULT_CONFIG})")
     p.add_argument("--out", help="run directory (default runs/<config name>)")
     p.add_argument("--set", action="append", default=[], metavar="SECTION.FIELD=VALUE", help="override a config field")
     p.add_argument("--quiet", action="store_true")

@@ -34,7 +34,7 @@ def run() -> dict:
     torch.set_num_threads(1)
     from dataset_tools.format.labels import write_labels
     from dataset_tools.format.passes import read_frame_passes
-    from dataset_tools.labels.fusion import FusionConfig, fuse_frame, fuse_passes
+    from dataset_tools.labels.label_fusion import FusionConfig, fuse_frame, fuse_passes
     from testing.constructed import write_frame
     from geometry.bev import BevGrid
     from geometry.rig import load_rig

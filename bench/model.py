@@ -1,4 +1,6 @@
-"""Benchmarks of the model (issue 5): `run() -> {figure: value}`, goals in GOALS.
+"""Benchmarks of the model at HEAD: `run() -> {figure: value}`, goals in GOALS; with a baseline
+(`--baseline REV`, default BASELINE; `make bench` passes it through bench.run), its training and
+inference figures measured alongside in the same run (`*_baseline`, `*_ratio`: HEAD / REV).
 
 - splat: our precomputed-index splat against LSS's cumsum-trick voxel pooling (written here from
   the LSS paper's description) and against a naive scatter, forward + backward, on the same inputs
@@ -9,11 +11,11 @@
   under bf16 autocast (`model.precision: bf16`, `_bf16` figures, and `_bf16_vs_fp32` ratios against
   this checkout's fp32, measured alternating).
 - cylindrical rectification (the paper's baseline): ms per four-camera frame, tables per rig.
-- the roofline (issue 23): GFLOP of a training step for each trunk (`step_gflop`), this machine's
+- the roofline: GFLOP of a training step for each trunk (`step_gflop`), this machine's
   matrix-multiply rate in fp32 and bf16 (`matmul_gflops`, the roof a convolution-bound step cannot
   pass), and the share of that roof the measured training step reaches (`train_share_of_matmul_peak`).
 
-    PYTHONPATH=. python -m bench.model
+    PYTHONPATH=. python -m bench.model [--baseline REV|none] [--rounds N]
 """
 
 from __future__ import annotations
@@ -35,13 +37,7 @@ GOALS = {
     "train_samples_per_s": ">= 4",
     "infer_ms_per_frame": "<= 60",
 }
-BASELINE = "1fef02b"  # main after issue 20, before issue 23's speed work: `make bench` measures it alongside
-RATIO_GOALS = {  # issue 23: against the baseline, measured in the same run
-    "train_samples_per_s_ratio": ">= 2.0",
-    "train_samples_per_s_efficientnet_lite0_ratio": ">= 2.0",
-    "infer_ms_per_frame_ratio": "<= 0.8",
-    "infer_ms_per_frame_efficientnet_lite0_ratio": "<= 0.8",
-}
+BASELINE = "4017132"  # the default revision HEAD is compared with (any commit: --baseline REV)
 
 
 # ----------------------------------------------------------------- LSS's cumsum trick
@@ -431,7 +427,7 @@ def run(train_steps: int = 12, infer_repeat: int = 20, baseline: str | None = No
     res.update(roofline(res, trunks))
     res.update(bench_rectify())
     res["load_average_1min_at_end"] = os.getloadavg()[0]
-    res["goals"] = dict(GOALS, **(RATIO_GOALS if baseline else {}))
+    res["goals"] = dict(GOALS)
     return res
 
 
@@ -439,9 +435,9 @@ if __name__ == "__main__":
     import argparse
 
     ap = argparse.ArgumentParser()
-    ap.add_argument("--baseline", help="a commit to measure alongside (e.g. 1fef02b)")
+    ap.add_argument("--baseline", default=BASELINE, help=f"a commit to measure alongside (default {BASELINE}; 'none': HEAD alone)")
     ap.add_argument("--rounds", type=int, default=2)
     a = ap.parse_args()
-    out = run(baseline=a.baseline, rounds=a.rounds)
+    out = run(baseline=None if a.baseline.lower() == "none" else a.baseline, rounds=a.rounds)
     for k, v in out.items():
         print(f"{k:32s} {v:.4g}" if isinstance(v, float) else f"{k:32s} {v}")

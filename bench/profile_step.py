@@ -1,4 +1,4 @@
-"""Where a `cpu_default` training step spends its time (issue 23), on a data set of yours.
+"""Where a `cpu_default` training step spends its time, on a data set of yours.
 
     PYTHONPATH=. python -m bench.profile_step DATA_ROOT [--steps 20] [--trunk scratch] [--set k=v ...]
 

@@ -13,8 +13,8 @@ import tempfile
 import time
 from pathlib import Path
 
-from dataset_tools.generation.config import REPO, load_config
-from dataset_tools.generation.driver import run as generate
+from dataset_tools.generation.dataset_config import REPO, load_config
+from dataset_tools.generation.driver import render as generate
 
 SCENES = ("highway_straight", "urban_block")
 FRAMES = 4

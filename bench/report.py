@@ -1,4 +1,4 @@
-"""Bench: the HTML QA report (dataset_tools.qa.report) at the `small` preset's sizes (480x302 fisheye,
+"""Bench: the HTML QA report (dataset_tools.qa.html_report) at the `small` preset's sizes (480x302 fisheye,
 400x400 label grid). Renders and fuses a few frames of one small-preset scene, builds the report
 from nothing, then again with nothing to redo, and scales the per-frame time and size to a
 200-frame data set (the whole small preset; goal: under ~100 MB).
@@ -20,10 +20,10 @@ DATASET_FRAMES = 200
 
 def run(frames: int = FRAMES, scene: str = SCENE) -> dict:
     from dataset_tools.fuse import fuse_dataset
-    from dataset_tools.generation.config import REPO, load_config
-    from dataset_tools.generation.driver import run as generate
-    from dataset_tools.labels.fusion import FusionConfig
-    from dataset_tools.qa.report import build_report, report_size
+    from dataset_tools.generation.dataset_config import REPO, load_config
+    from dataset_tools.generation.driver import render as generate
+    from dataset_tools.labels.label_fusion import FusionConfig
+    from dataset_tools.qa.html_report import build_report, report_size
 
     cfg = load_config(REPO / "configs" / "dataset" / "small.yaml")
     cfg["scenes"] = [s for s in cfg["scenes"] if s["name"] == scene]

@@ -1,8 +1,8 @@
-"""Issue 23's accuracy check: the training loss curve of this checkout against a baseline
+"""An accuracy check of speed work: the training loss curve of this checkout against a baseline
 commit's, same config, data and seed (the speed work changes float rounding only: memory format
 and thread count).
 
-    PYTHONPATH=. python -m bench.same_loss DATA_ROOT [--steps 30] [--baseline 1fef02b] [--set k=v ...]
+    PYTHONPATH=. python -m bench.same_loss DATA_ROOT [--steps 30] [--baseline REV] [--set k=v ...]
 
 Each side trains `steps` steps of configs/train/cpu_default.yaml on DATA_ROOT in a fresh process
 (model.training.train, as train.py does) and the per-step losses are printed side by side with

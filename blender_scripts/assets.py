@@ -11,7 +11,7 @@ import math
 
 import numpy as np
 
-from .shapes import MeshData
+from .meshes import MeshData
 from .vehicles import BELT, KIND_STYLES, build_vehicle
 
 # kind -> (length, width, height) nominal, metres; wheel radius

@@ -19,7 +19,7 @@ from .camera import add_rig_camera, add_topdown_camera
 from .layouts import Layout, build_layout
 from .materials import MATERIAL_CLASSES, build_materials
 from .people import place_people
-from .shapes import MeshData
+from .meshes import MeshData
 from .traffic import ego_pose, place_traffic, vehicle_pose
 from .two_wheelers import place_two_wheelers
 

@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import assets
-from .shapes import MeshData, Path, arc_path, curved_path, line_path
+from .meshes import MeshData, Path, arc_path, curved_path, line_path
 
 Z_ROAD, Z_PAINT, Z_KERB = 0.01, 0.02, 0.15
 FACADES = [(0.55, 0.5, 0.42), (0.45, 0.28, 0.2), (0.7, 0.68, 0.62), (0.35, 0.37, 0.4), (0.6, 0.52, 0.35),

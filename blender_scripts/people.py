@@ -13,7 +13,7 @@ import math
 import numpy as np
 
 from .layouts import Z_KERB, Layout
-from .shapes import MeshData
+from .meshes import MeshData
 
 PER_100M = 2.0  # people per 100 m of pavement, on average (Poisson)
 MAX_PEOPLE = 60

@@ -14,7 +14,7 @@ import math
 import numpy as np
 
 from .layouts import Z_KERB, Layout
-from .shapes import MeshData
+from .meshes import MeshData
 
 PER_100M = 1.0  # two-wheelers per 100 m of pavement, on average (Poisson)
 MAX_TWO_WHEELERS = 30

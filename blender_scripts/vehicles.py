@@ -17,7 +17,7 @@ import math
 
 import numpy as np
 
-from .shapes import MeshData
+from .meshes import MeshData
 
 # body styles: profiles as (u, fraction of the height) points, interpolated linearly.
 # belt: top of the lower body; roof: top of the glasshouse (below belt = no glasshouse there);

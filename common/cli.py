@@ -25,6 +25,19 @@ EXIT_PROBLEMS = 1
 EXIT_INTERRUPTED = 130
 
 
+def print_problems(problems) -> int:
+    """Print each problem (one line each) on stderr; EXIT_PROBLEMS when there are any, else 0."""
+    for p in problems:
+        print(p, file=sys.stderr)
+    return EXIT_PROBLEMS if problems else 0
+
+
+def require_positive(option: str, n: int | None) -> None:
+    """A count option (--workers, --threads), when given, is at least 1: one line, exit 2, otherwise."""
+    if n is not None and n < 1:
+        raise InputError(f"{option}: must be >= 1, got {n}")
+
+
 class ArgumentParser(argparse.ArgumentParser):
     """argparse with a one-line error (InputError, exit 2) instead of the usage block."""
 

@@ -4,7 +4,7 @@
 - `format/`: the on-disk layout of a data set (`layout`), EXR/PNG I/O, the index and the reader
 - `labels/`: fine classes, visibility p(o) and label fusion (`python -m dataset_tools fuse`)
 - `qa/`: validate, inspect, consistency, stats, contact sheets, the audit and the HTML report
-- `pipeline`: the stage order (render, fuse, audit, report; `python -m dataset_tools dataset`)
+- `pipeline`: the stage order (render, contact sheets, fuse, audit, report; `python -m dataset_tools dataset`)
 
 Every command is `python -m dataset_tools <command>`, from the one table in `__main__.py`; the
 modules at this level (generate, fuse, merge, index) are the commands that are not QA tools.

@@ -1,4 +1,5 @@
-"""Fuse every rendered frame of a data set into BEV labels, then (re)write index.json.
+"""Fuse every rendered frame of a data set into BEV labels, (re)write index.json, then derive each
+frame's camera-view targets (`camera_targets.npy`, format.camera_targets) from its EXR passes.
 
     python -m dataset_tools fuse <dataset> [--workers N] [--config configs/dataset/small.yaml] [--force]
                                  [--backend ray [--address ADDR]]
@@ -6,7 +7,7 @@
 Resumable: a frame whose three label PNGs look whole is skipped (each PNG is written atomically,
 the visibility last); a label that is missing, empty, cut short or of the wrong size
 (`format.labels.label_damage`: header, end and size, no decoding) is redone, with one notice line;
-`--force` redoes every frame. Per-frame work is `labels.fusion.fuse_frame`, run through
+`--force` redoes every frame. Per-frame work is `labels.label_fusion.fuse_frame`, run through
 common.backend: a local process pool (`--workers` processes), or Ray tasks in batches (`--backend
 ray`; `--workers` then caps the batches running at once).
 """
@@ -17,15 +18,17 @@ import sys
 from pathlib import Path
 
 from common.backend import add_backend_args, make_backend
-from common.cli import EXIT_PROBLEMS, ArgumentParser, run_cli
+from common.cli import ArgumentParser, print_problems, require_positive, run_cli
 from common.files import clean_stale_temps
 from common.lock import hold_lock
 
+from .format.camera_targets import derive_camera_targets, targets_path, write_camera_targets
 from .format.index import build_index, write_index
 from .format.labels import label_damage, write_labels
 from .format.layout import DatasetError, FrameFiles, Manifest
 from .format.meta import read_meta
-from .labels.fusion import FusionConfig, fuse_frame
+from .generation.dataset_config import load_labels
+from .labels.label_fusion import FusionConfig, fuse_frame
 
 
 def fuse_one(frame_dir: str, cfg: FusionConfig):
@@ -66,9 +69,20 @@ def damage_notice(damaged: list[str]) -> str:
     return f"fuse: redoing {len(damaged)} frame(s) whose labels are damaged: {damaged[0]}{more}"
 
 
+def targets_one(frame_dir: str, _shared=None):
+    """(frame_dir, problem or None): write the frame's camera-view targets (format.camera_targets)."""
+    try:
+        write_camera_targets(frame_dir, derive_camera_targets(frame_dir, FrameFiles(frame_dir).camera_names()))
+        return frame_dir, None
+    except (DatasetError, ValueError) as exc:
+        return frame_dir, str(exc)
+
+
 def fuse_dataset(root, cfg: FusionConfig, workers: int | None = None, force: bool = False, progress: bool = True,
                  backend: str = "local", address: str | None = None) -> list[str]:
-    """Fuse every manifest frame that has no whole labels yet; returns the problems (one line each)."""
+    """The fuse stage: fuse every manifest frame that has no whole labels yet, write index.json,
+    then the camera-view targets of every fused frame that has none (what training reads; derived
+    here, never by the loader, so a data set is read-only once built); the problems, one line each."""
     from tqdm import tqdm
 
     root = Path(root)
@@ -78,14 +92,22 @@ def fuse_dataset(root, cfg: FusionConfig, workers: int | None = None, force: boo
     if damaged:
         print(damage_notice(damaged), file=sys.stderr)
     todo = [d for d, _ in planned]
-    problems = []
+    failed = {}
+    pool = make_backend(backend, workers, address)
     with tqdm(total=len(todo), desc="fuse", unit="frame", disable=not progress) as bar:
-        for _, err in make_backend(backend, workers, address).map(fuse_one, todo, shared=cfg):
+        for d, err in pool.map(fuse_one, todo, shared=cfg):
             if err:
-                problems.append(err)
+                failed[d] = err
             bar.update(1)
     write_index(root, build_index(root, cfg.class_names))
-    return problems
+    frames = [str(root / e["dir"]) for e in Manifest(root).entries()]
+    targets = [d for d in frames if d not in failed and (force or not targets_path(d).is_file())]
+    with tqdm(total=len(targets), desc="camera targets", unit="frame", disable=not progress or not targets) as bar:
+        for d, err in pool.map(targets_one, targets):
+            if err:
+                failed[d] = err
+            bar.update(1)
+    return [f"error: {err}" for err in failed.values()]
 
 
 def main(argv=None) -> int:
@@ -99,17 +121,14 @@ def main(argv=None) -> int:
     add_backend_args(ap)
     ap.add_argument("--no-progress", action="store_true")
     args = ap.parse_args(argv)
-    if args.workers is not None and args.workers < 1:
-        raise DatasetError(f"--workers: must be >= 1, got {args.workers}")
-    cfg = FusionConfig.load(args.config) if args.config else FusionConfig()
+    require_positive("--workers", args.workers)
+    cfg = load_labels(args.config) if args.config else FusionConfig()
     if not Manifest(args.dataset).exists():
         raise DatasetError(f"dataset: {Manifest(args.dataset).path}: missing (not a generated data set)")
     with hold_lock(args.dataset):  # a second fuse (or a generate) on this data set is refused
         problems = fuse_dataset(args.dataset, cfg, args.workers, args.force, progress=not args.no_progress,
                                 backend=args.backend, address=args.address)
-    for p in problems:
-        print(f"error: {p}", file=sys.stderr)
-    return EXIT_PROBLEMS if problems else 0
+    return print_problems(problems)
 
 
 if __name__ == "__main__":

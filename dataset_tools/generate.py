@@ -1,8 +1,10 @@
 """Render a data set: `python -m dataset_tools generate --config configs/dataset/<preset>.yaml --out DIR`.
 
-The driver is `generation.driver` (planning, Blender workers, manifest); the config is checked by
-`generation.config`. Bad input: one line, exit 2. Run again after an interruption to resume.
-`--backend ray` renders on a Ray cluster (common.backend, docs/scaling.md).
+The render stage of dataset_tools.pipeline alone: `generation.driver.render` (planning, Blender
+workers, manifest) on the config checked by `generation.dataset_config`. The contact sheets are the
+pipeline's next stage (`python -m dataset_tools contact_sheet DIR`, or the whole `dataset`).
+Bad input: one line, exit 2; scenes that fail: one line each, exit 1. Run again after an
+interruption to resume. `--backend ray` renders on a Ray cluster (common.backend, docs/scaling.md).
 """
 
 from __future__ import annotations
@@ -10,13 +12,13 @@ from __future__ import annotations
 from pathlib import Path
 
 from common.backend import add_backend_args
-from common.cli import ArgumentParser, run_cli
+from common.cli import ArgumentParser, print_problems, require_positive, run_cli
 from common.errors import ConfigError
 from common.files import output_dir
 from common.lock import hold_lock
 
-from .generation.config import load_config
-from .generation.driver import parse_shard, run
+from .generation.dataset_config import load_config
+from .generation.driver import parse_shard, render
 
 
 def main(argv=None) -> int:
@@ -33,10 +35,8 @@ def main(argv=None) -> int:
     ap.add_argument("--no-progress", action="store_true")
     a = ap.parse_args(argv)
     shard = parse_shard(a.shard)
-    if a.workers is not None and a.workers < 1:
-        raise ConfigError(f"--workers: must be >= 1, got {a.workers}")
-    if a.threads < 1:
-        raise ConfigError(f"--threads: must be >= 1, got {a.threads}")
+    require_positive("--workers", a.workers)
+    require_positive("--threads", a.threads)
     cfg = load_config(a.config)
     if a.scenes:
         unknown = sorted(set(a.scenes) - {s["name"] for s in cfg["scenes"]})
@@ -45,8 +45,8 @@ def main(argv=None) -> int:
         cfg["scenes"] = [s for s in cfg["scenes"] if s["name"] in a.scenes]
     out = output_dir(a.out)
     with hold_lock(out):  # a second generate on this --out is refused, naming the holder
-        return run(cfg, out, shard, a.workers, progress=not a.no_progress, backend=a.backend,
-                   address=a.address, threads=a.threads)
+        return print_problems(render(cfg, out, shard, a.workers, progress=not a.no_progress, backend=a.backend,
+                                     address=a.address, threads=a.threads))
 
 
 if __name__ == "__main__":

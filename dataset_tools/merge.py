@@ -3,7 +3,7 @@
 
 For clusters without a shared file system (`generate --out` per node) and Slurm job arrays
 (`generate --shard i/N` per array task). `--config` also checks that no frame of the config is
-missing and sets the fusion. Library: dataset_tools.format.merge; the stages after it:
+missing and sets the fusion. Library: dataset_tools.format.merge_parts; the stages after it:
 dataset_tools.pipeline. Problems: one line each, exit 1 (EXIT_PROBLEMS), nothing written.
 """
 
@@ -12,8 +12,9 @@ from __future__ import annotations
 from pathlib import Path
 
 from common.backend import add_backend_args
-from common.cli import ArgumentParser, run_cli
+from common.cli import ArgumentParser, require_positive, run_cli
 
+from .generation.dataset_config import load_config
 from .pipeline import build_dataset
 
 
@@ -26,7 +27,9 @@ def main(argv=None) -> int:
     add_backend_args(ap)
     ap.add_argument("--no-progress", action="store_true")
     a = ap.parse_args(argv)
-    return build_dataset(a.config, a.out, a.backend, a.workers, a.address, parts=a.parts, progress=not a.no_progress)
+    require_positive("--workers", a.workers)
+    cfg = load_config(a.config) if a.config else None
+    return build_dataset(cfg, a.out, a.backend, a.workers, a.address, parts=a.parts, progress=not a.no_progress)
 
 
 if __name__ == "__main__":

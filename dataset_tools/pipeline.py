@@ -1,107 +1,92 @@
 """The one place that knows the order of the data set stages: render (or merge parts rendered
-apart), fuse, audit, report.
+apart), contact sheets, fuse, audit, report.
 
     python -m dataset_tools dataset --config configs/dataset/small.yaml --out data/small [--workers N]
                                     [--backend ray [--address A] [--threads T]]
 
-    build_dataset("configs/dataset/small.yaml", "data/small")            # what `make dataset` runs
-    build_dataset(cfg, "data/paper", parts=["parts/0", "parts/1"])       # what `merge` runs
+    build_dataset(load_config("configs/dataset/small.yaml"), "data/small")   # what `make dataset` runs
+    build_dataset(cfg, "data/paper", parts=["parts/0", "parts/1"])           # what `merge` runs
 
-Each stage is its command (`python -m dataset_tools <stage>`) with the same options, so running
-the stages by hand gives the same files. Every stage resumes: run it again after an interruption.
-A render or merge that fails, or frames that cannot be fused, stop the pipeline; an audit above
-its threshold does not (the report shows it), but the exit code is then EXIT_PROBLEMS.
+The dataset config is loaded once (generation.dataset_config.load_config: its `labels:` section included,
+so a mistake anywhere in it stops before anything renders) and handed to each stage, a library
+function that returns its problems (one line each): generation.driver.render,
+qa.contact_sheet.make_sheets, fuse.fuse_dataset (labels, then the camera-view targets),
+qa.audit.run_audit, qa.html_report.run_report. The commands `generate`, `contact_sheet`, `fuse`,
+`audit` and `report` are thin parsers over the same functions, so running the stages by hand
+gives the same files. Every stage resumes: run it again after an interruption. A render or merge
+that fails, or frames that cannot be fused, stop the pipeline; an audit above its threshold does
+not (the report shows it), but the exit code is then EXIT_PROBLEMS.
 """
 
 from __future__ import annotations
 
-import sys
+from contextlib import ExitStack
 from pathlib import Path
 
 from common.backend import add_backend_args
-from common.cli import EXIT_PROBLEMS, ArgumentParser, run_cli
+from common.cli import EXIT_PROBLEMS, ArgumentParser, print_problems, require_positive, run_cli
+from common.files import output_dir
+from common.lock import hold_lock
 
-STAGES = ("render", "fuse", "audit", "report")
+from .format.merge_parts import merge
+from .fuse import fuse_dataset
+from .generation.dataset_config import load_config
+from .generation.driver import plan, render
+from .labels.label_fusion import FusionConfig
+from .qa.audit import run_audit
+from .qa.contact_sheet import make_sheets
+from .qa.html_report import run_report
 
-
-def _render(config, out, backend, workers, address, threads, progress) -> int:
-    from . import generate
-
-    argv = ["--config", str(config), "--out", str(out), "--backend", backend]
-    argv += ["--address", address] if address else []
-    argv += ["--workers", str(workers)] if workers else []
-    argv += ["--threads", str(threads)] if threads else []
-    return generate.main(argv + ([] if progress else ["--no-progress"]))
-
-
-def _merge(config, out, parts, progress) -> int:
-    """The render stage for parts rendered apart (`generate --out` per node, `--shard i/N`)."""
-    from .format.merge import merge
-    from .generation.config import load_config
-    from .generation.driver import plan
-
-    expected = None
-    if config:
-        expected = {(s["name"], f) for s, f in plan(load_config(config), (0, 1))}
-    problems = merge(Path(out), [Path(p) for p in parts], expected, progress=progress)
-    for p in problems:
-        print(f"merge: {p}", file=sys.stderr)
-    if problems:
-        return EXIT_PROBLEMS
-    from .qa.contact_sheet import make_sheets
-
-    make_sheets(Path(out))  # as generate does after rendering
-    return 0
+STAGES = ("render", "contact_sheets", "fuse", "audit", "report")
+FATAL = {"render", "fuse"}  # their problems stop the pipeline; the audit's are reported, not fatal
 
 
-def _fuse(config, out, backend, workers, address, progress) -> int:
-    from . import fuse
-
-    argv = [str(out), "--backend", backend]
-    argv += ["--config", str(config)] if config else []
-    argv += ["--address", address] if address else []
-    argv += ["--workers", str(workers)] if workers else []
-    return fuse.main(argv + ([] if progress else ["--no-progress"]))
+def merge_parts(cfg: dict | None, out: Path, parts, progress: bool = True) -> list[str]:
+    """The render stage for parts rendered apart (`generate --out` per node, `--shard i/N`): every
+    frame of `cfg` (when given) must be in exactly one part."""
+    expected = {(s["name"], f) for s, f in plan(cfg, (0, 1))} if cfg else None
+    return [f"merge: {p}" for p in merge(out, [Path(p) for p in parts], expected, progress=progress)]
 
 
-def _audit(config, out, progress) -> int:
-    from .qa import audit
-
-    argv = [str(out)] + (["--config", str(config)] if config else [])
-    return audit.main(argv + ([] if progress else ["--no-progress"]))
-
-
-def _report(out, progress) -> int:
-    from .qa import report
-
-    return report.main([str(out)] + ([] if progress else ["--no-progress"]))
+def contact_sheets(out: Path) -> list[str]:
+    """One picture per scene (qa.contact_sheet); none to draw is not a problem of the pipeline."""
+    make_sheets(out)
+    return []
 
 
-def build_dataset(config, out, backend: str = "local", workers: int | None = None, address: str | None = None,
-                  threads: int | None = None, parts=None, progress: bool = True) -> int:
-    """Render `config` into `out` (or merge `parts` into it), then fuse, audit and report; the exit code.
-    `config` may be None with `parts` (no check that every frame is there; default fusion)."""
+def build_dataset(cfg: dict | None, out, backend: str = "local", workers: int | None = None,
+                  address: str | None = None, threads: int | None = None, parts=None, progress: bool = True) -> int:
+    """Render `cfg` (load_config) into `out` (or merge `parts` into it), then draw the contact sheets,
+    fuse, audit and report; the exit code. `cfg` may be None with `parts` (no check that every
+    frame is there; default fusion). Holds `out`'s lock for the whole run (with `parts`, from after
+    the merge, which checks the parts first and writes nothing when they do not fit)."""
+    out = Path(out) if parts else output_dir(out)
+    labels = cfg["labels"] if cfg else FusionConfig()
     stages = {
-        "render": ((lambda: _merge(config, out, parts, progress)) if parts
-                   else (lambda: _render(config, out, backend, workers, address, threads, progress))),
-        "fuse": lambda: _fuse(config, out, backend, workers, address, progress),
-        "audit": lambda: _audit(config, out, progress),
-        "report": lambda: _report(out, progress),
+        "render": ((lambda: merge_parts(cfg, out, parts, progress)) if parts
+                   else (lambda: render(cfg, out, (0, 1), workers, progress, backend, address, threads or 1))),
+        "contact_sheets": lambda: contact_sheets(out),
+        "fuse": lambda: fuse_dataset(out, labels, workers, progress=progress, backend=backend, address=address),
+        "audit": lambda: run_audit(out, labels, progress=progress),
+        "report": lambda: run_report(out, progress=progress),
     }
-    result = 0
-    for stage in STAGES:
-        print(f"dataset: {'merge' if parts and stage == 'render' else stage}", flush=True)
-        code = stages[stage]()
-        if stage == "audit" and code == EXIT_PROBLEMS:  # labels above the audit's threshold: reported, not fatal
-            result = code
-        elif code:  # the stage said why; run again to resume
-            return code
+    result, locked = 0, False
+    with ExitStack() as held:
+        for stage in STAGES:
+            if not locked and not (parts and stage == "render"):  # a second writer on this data set is refused
+                held.enter_context(hold_lock(out))
+                locked = True
+            print(f"dataset: {'merge' if parts and stage == 'render' else stage}", flush=True)
+            if print_problems(stages[stage]()):
+                if stage in FATAL:  # the stage said why; run again to resume
+                    return EXIT_PROBLEMS
+                result = EXIT_PROBLEMS
     return result
 
 
 def main(argv=None) -> int:
     ap = ArgumentParser(prog="python -m dataset_tools dataset",
-                        description="Build a data set: render, fuse, audit, report (each resumable).")
+                        description="Build a data set: render, contact sheets, fuse, audit, report (each resumable).")
     ap.add_argument("--config", required=True, type=Path, help="configs/dataset/<preset>.yaml")
     ap.add_argument("--out", required=True, type=Path)
     ap.add_argument("--workers", type=int, default=None,
@@ -110,7 +95,11 @@ def main(argv=None) -> int:
     add_backend_args(ap)
     ap.add_argument("--no-progress", action="store_true")
     a = ap.parse_args(argv)
-    return build_dataset(a.config, a.out, a.backend, a.workers, a.address, a.threads, progress=not a.no_progress)
+    require_positive("--workers", a.workers)
+    require_positive("--threads", a.threads)
+    return build_dataset(load_config(a.config), a.out, a.backend, a.workers, a.address, a.threads,
+                         progress=not a.no_progress)
+
 
 
 if __name__ == "__main__":

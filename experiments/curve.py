@@ -1,4 +1,4 @@
-"""Accuracy against training time (issue 22): the validation scores train.py logged of one or more
+"""Accuracy against training time: the validation scores train.py logged of one or more
 runs (`train.val_every` steps on `data.val_split`, TensorBoard scalars `val/...`), as a table and a
 picture, so that a run that has not reached its goal says how far it is and how fast it moves.
 

@@ -11,7 +11,7 @@ from .config import load_config
 from .data import BevDataset
 from .frustum import Frustum
 from .lss import NUM_CLASSES, LSSFisheye
-from .predict import Prediction, predict
+from .inference import Prediction, predict
 from .run_dir import EvalDir, RunDir
 
 __all__ = ["build_model", "load_checkpoint", "read_checkpoint", "save_checkpoint", "CheckpointError", "load_config", "BevDataset",

@@ -1,4 +1,4 @@
-"""build_model(cfg, rig) and checkpoints that carry their config and rig: the one writer
+"""build_model(cfg, rig) and checkpoints that carry their config, rig and class names: the one writer
 (`save_checkpoint`), the one reader (`read_checkpoint`, used by resume, eval and the ablation) and
 the one place that brings an older checkpoint up to date (`upgrade_checkpoint`)."""
 
@@ -12,6 +12,8 @@ from common.errors import InputError
 from common.files import write_bytes_atomic
 from geometry.rig import Rig, rig_from_dict
 
+from dataset_tools.labels.classes import TRAIN_CLASSES
+
 from .lss import NUM_CLASSES
 
 MODEL_KEYS = ("config", "model", "rig")  # what every checkpoint holds
@@ -24,11 +26,10 @@ class CheckpointError(InputError):
 
 def build_model(cfg: dict, rig: Rig, num_classes: int = NUM_CLASSES):
     """The model of a validated config for a rig (cameras at their native image size)."""
-    from .frustum import Frustum
     from .lss import LSSFisheye
-    from .rectified import model_rig
+    from .rectified import model_view
 
-    return LSSFisheye(cfg["model"], Frustum(model_rig(rig, cfg), cfg), num_classes, cfg["loss"]["camera_seg_weight"] > 0)
+    return LSSFisheye(cfg["model"], model_view(rig, cfg).frustum, num_classes, cfg["loss"]["camera_seg_weight"] > 0)
 
 
 def save_checkpoint(path, state: dict) -> None:
@@ -53,7 +54,8 @@ def model_part(cfg: dict) -> dict:
 def upgrade_checkpoint(ckpt: dict, path) -> dict:
     """A checkpoint as the current code writes it. The config is validated, which gives options
     added since it was written their defaults (model.trunk, data.rectify, ...); a checkpoint
-    without `num_classes` predicts NUM_CLASSES; one without `cuda_rng` was written on CPU."""
+    without `num_classes` predicts NUM_CLASSES; one without `class_names` was trained on the
+    default classes (the first `num_classes` of TRAIN_CLASSES); one without `cuda_rng` was written on CPU."""
     from .config import validate
 
     cfg = ckpt["config"]
@@ -63,7 +65,11 @@ def upgrade_checkpoint(ckpt: dict, path) -> dict:
         cfg = validate(cfg, f"{path}: config")
     except InputError as exc:
         raise CheckpointError(str(exc)) from None
-    return {"num_classes": NUM_CLASSES, "cuda_rng": None, **ckpt, "config": cfg}
+    ckpt = {"num_classes": NUM_CLASSES, "cuda_rng": None, **ckpt, "config": cfg}
+    names = ckpt.get("class_names", list(TRAIN_CLASSES)[: ckpt["num_classes"]])
+    if not (isinstance(names, list) and len(names) == ckpt["num_classes"] and all(isinstance(n, str) for n in names)):
+        raise CheckpointError(f"{path}: class_names: must be a list of {ckpt['num_classes']} names (num_classes)")
+    return {**ckpt, "class_names": names}
 
 
 def read_checkpoint(path, expect_config: dict | None = None, expect_rig: Rig | None = None, resume: bool = False) -> dict:

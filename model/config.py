@@ -1,7 +1,8 @@
 """Training configs (configs/train/*.yaml): schema, defaults and validation.
 
 A config file overrides any subset of the defaults; `_base` names another config file (relative to
-this one) to start from. A wrong field raises ConfigError naming the file and the field.
+this one) to start from, or a list of them, merged in order (a shared part such as recipe.yaml
+written once). A wrong field raises ConfigError naming the file and the field.
 """
 
 from __future__ import annotations
@@ -80,7 +81,7 @@ SCHEMA = Section({
         "norm": Str(choices=("group", "batch"), default="group"),
         "dropout": Num(0.0, 0.95, default=0.0),
         # bf16: the trunk and the BEV encoder run under bfloat16 autocast (lift, splat, pooling and
-        # losses stay float32); training and inference alike (issue 23, docs/model.md)
+        # losses stay float32); training and inference alike (docs/model.md)
         "precision": Str(choices=("fp32", "bf16"), default="fp32"),
     }),
     "loss": Section({
@@ -89,7 +90,7 @@ SCHEMA = Section({
         "visibility_weighting": Bool(default=True),
         "occlusion_weight": Num(0.0, 1e6, default=1.0),
         "occlusion_target": Str(choices=("soft", "binary"), default="soft"),
-        # camera-view supervision from the rendered passes (model.camera_targets); 0: off
+        # camera-view supervision from the rendered passes (model.feature_targets); 0: off
         "depth_weight": Num(0.0, 1e6, default=0.0),  # cross entropy of the lift's depth bins
         "camera_seg_weight": Num(0.0, 1e6, default=0.0),  # a 1x1 head on the context features, training only
         "dice_weight": Num(0.0, 1e6, default=0.0),  # soft Dice over the BEV classes (thin classes); 0: off
@@ -146,12 +147,17 @@ def read_config_file(path, _seen=()) -> dict:
     if not isinstance(data, dict):
         raise ConfigError(f"{path}: must be a mapping of sections")
     base = data.pop("_base", None)
-    if base is not None:
-        bpath = (path.parent / str(base)).resolve()
+    if base is None:
+        return data
+    merged: dict = {}
+    for b in base if isinstance(base, list) else [base]:
+        if not isinstance(b, str):
+            raise ConfigError(f"{path}: _base: must be a file name or a list of file names, got {b!r}")
+        bpath = (path.parent / b).resolve()
         if bpath in _seen:
             raise ConfigError(f"{path}: _base: circular reference to {bpath}")
-        data = deep_merge(read_config_file(bpath, _seen + (bpath,)), data)
-    return data
+        merged = deep_merge(merged, read_config_file(bpath, _seen + (bpath,)))
+    return deep_merge(merged, data)
 
 
 def load_config(path, overrides: dict | None = None) -> dict:

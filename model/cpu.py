@@ -1,10 +1,10 @@
-"""CPU settings of a training or inference process (issue 23), measured on the 2-core machine.
+"""CPU settings of a training or inference process, measured on the 2-core machine.
 
 - Compute threads: the cores shared among the processes of a CPU DDP run (all of them for one
   process). An earlier rule left the loader workers their cores (1 compute thread on 2 cores with
   cpu_default's loader worker): faster on a machine loaded by other jobs, but on an idle 2-core
   machine 0.82x the training samples/s and 1.6x the inference time of 2 threads
-  (docs/benchmarks.md, "Issue 23"); the loader worker is idle most of a step. The count depends
+  (docs/benchmarks.md); the loader worker is idle most of a step. The count depends
   only on the machine's cores and the process count (never on its load), so a resumed run computes
   with the same threads as an uninterrupted one.
 - channels_last weights: oneDNN's convolutions and GroupNorm run faster in NHWC on CPU, and the

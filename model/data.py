@@ -24,9 +24,8 @@ from dataset_tools.format.reader import DatasetIndex, downsample_labels, read_fr
 from geometry.bev import BevGrid
 
 from .augment import ColorJitter, random_transform, warp_image
-from .camera_targets import camera_targets, train_lut
-from .frustum import Frustum
-from .rectified import rectifier
+from .feature_targets import camera_targets, train_lut
+from .rectified import model_view
 
 
 class DataError(InputError):
@@ -45,14 +44,15 @@ class BevDataset(Dataset):
     def __init__(self, index: DatasetIndex | str, split: str, cfg: dict, train: bool = False):
         self.index = index if isinstance(index, DatasetIndex) else DatasetIndex(index)
         self.refs = self.index.frames(split)
-        self.rectifier = rectifier(self.index.rig, cfg)  # None: the model sees the fisheye images
-        self.rig = self.rectifier.rig if self.rectifier else self.index.rig
+        view = model_view(self.index.rig, cfg)
+        self.rectifier = view.rectifier  # None: the model sees the fisheye images
+        self.rig = view.rig
         self.names = self.rig.names
         self.class_names = self.index.class_names
         # thin classes win a block when labels are pooled to the model grid (by name: the class map is configurable)
         self.priority = tuple(self.class_names.index(n) for n in ("lane_marking", "vehicle") if n in self.class_names)
         self.cfg = cfg
-        self.frustum = Frustum(self.rig, cfg)
+        self.frustum = view.frustum
         self.input_size, self.grid = self.frustum.input_size, self.frustum.grid
         self.factor = label_factor(self.index.grid, self.grid, str(self.index.root / INDEX))
         self.seed = cfg["train"]["seed"]
@@ -65,22 +65,17 @@ class BevDataset(Dataset):
         loss = cfg["loss"]
         self.camera_targets = train and (loss["depth_weight"] > 0 or loss["camera_seg_weight"] > 0)
         self.lut = train_lut(self.class_names)
-        self._frusta: dict = {}  # scene -> (Frustum, rectifier) of its own rig (a scene keeps one rig)
 
     def geometry_of(self, ref, meta: dict):
         """(lift geometry, rectifier or None) of the frame's rig: the nominal ones unless the
         frame has its own (jittered) rig, whose fisheye images are then rectified with their own maps."""
         if not ref.own_rig:
             return self.frustum, self.rectifier
-        if ref.scene not in self._frusta:
-            if len(self._frusta) >= 16:
-                self._frusta.pop(next(iter(self._frusta)))
-            fisheye = rig_of_frame(ref, meta, self.index.rig)
-            if fisheye.names != self.names:
-                raise DataError(f"{FrameFiles(ref.dir).meta}: rig cameras {fisheye.names}, the index has {self.names}")
-            rect = rectifier(fisheye, self.cfg)
-            self._frusta[ref.scene] = (Frustum(rect.rig if rect else fisheye, self.cfg), rect)
-        return self._frusta[ref.scene]
+        fisheye = rig_of_frame(ref, meta, self.index.rig)
+        if fisheye.names != self.names:
+            raise DataError(f"{FrameFiles(ref.dir).meta}: rig cameras {fisheye.names}, the index has {self.names}")
+        view = model_view(fisheye, self.cfg)  # cached by calibration
+        return view.frustum, view.rectifier
 
     def targets_of(self, ref, frustum, transforms, rectify) -> tuple[torch.Tensor, torch.Tensor]:
         """(depth bin (N, h, w), training class (N, h, w)) of what each feature pixel's ray hits."""

@@ -15,14 +15,14 @@ TABLE_COLUMNS = [("miou", "mIoU"), ("iou/occlusion", "Occlusions"), ("iou/vehicl
                  ("iou/lane_marking", "Markings"), ("iou/street", "Street"), ("iou/background", "Background")]
 
 
-def _fmt(v) -> str:
+def fmt(v) -> str:
     return "-" if v is None or v != v else f"{v:.3f}"  # NaN (class absent from truth and prediction) -> "-"
 
 
-def _fmt_interval(v, iv) -> str:
+def fmt_interval(v, iv) -> str:
     """`0.462 [0.431, 0.490]`: a figure and its interval (the figure alone where there is none)."""
     if not iv or v is None or v != v or iv[0] != iv[0]:
-        return _fmt(v)
+        return fmt(v)
     return f"{v:.3f} [{iv[0]:.3f}, {iv[1]:.3f}]"
 
 
@@ -32,7 +32,7 @@ def markdown_table(results: dict, method: str) -> str:
     for split, r in results.items():
         o, iv = r["overall"], r.get("interval", {})
         lines.append(f"| {method} | Raw distorted | {split} | {len(r.get('scenes', {})) or '-'} | "
-                     + " | ".join(_fmt_interval(o.get(k), iv.get(k)) for k, _ in TABLE_COLUMNS) + " |")
+                     + " | ".join(fmt_interval(o.get(k), iv.get(k)) for k, _ in TABLE_COLUMNS) + " |")
     lines += ["", "[low, high]: the 95 % interval of a bootstrap over the split's scenes (docs/evaluation.md)."]
     for split, r in results.items():
         for group in ("bands", "weather"):
@@ -42,10 +42,10 @@ def markdown_table(results: dict, method: str) -> str:
                       f"| {group[:-1] if group == 'bands' else 'weather'} | " + " | ".join(t for _, t in TABLE_COLUMNS) + " |",
                       "|" + "---|" * (1 + len(TABLE_COLUMNS))]
             for name, o in r[group].items():
-                lines.append(f"| {name} | " + " | ".join(_fmt(o.get(k)) for k, _ in TABLE_COLUMNS) + " |")
+                lines.append(f"| {name} | " + " | ".join(fmt(o.get(k)) for k, _ in TABLE_COLUMNS) + " |")
     if any("iou_tol/lane_marking" in r["overall"] for r in results.values()):
         lines += ["", "Markings, tolerance IoU (a marking predicted within one cell of a true one counts): "
-                  + ", ".join(f"{s} {_fmt(r['overall'].get('iou_tol/lane_marking'))}" for s, r in results.items())]
+                  + ", ".join(f"{s} {fmt(r['overall'].get('iou_tol/lane_marking'))}" for s, r in results.items())]
     lines += ["", "Inference: " + ", ".join(f"{s} {r['inference_ms_per_frame']:.1f} ms/frame" for s, r in results.items())]
     return "\n".join(lines) + "\n"
 
@@ -64,13 +64,13 @@ def comparison_table(report: dict) -> str:
             better = "A better" if d["low"] > 0 else "B better" if d["high"] < 0 else "undecided"
             if d["low"] != d["low"]:
                 better = "-"
-            lines.append(f"| {split} | {r['scenes']} | {title} | {_fmt(d['a'])} | {_fmt(d['b'])} | {_signed(d['diff'])} | "
-                         f"[{_signed(d['low'])}, {_signed(d['high'])}] | {better} |")
+            lines.append(f"| {split} | {r['scenes']} | {title} | {fmt(d['a'])} | {fmt(d['b'])} | {signed(d['diff'])} | "
+                         f"[{signed(d['low'])}, {signed(d['high'])}] | {better} |")
     lines += ["", f"Paired bootstrap over scenes ({report['resamples']} resamples; docs/evaluation.md)."]
     return "\n".join(lines) + "\n"
 
 
-def _signed(v) -> str:
+def signed(v) -> str:
     return "-" if v is None or v != v else f"{v:+.3f}"
 
 
@@ -106,6 +106,32 @@ def frame_picture(path: Path, images: dict, truth, vis, pred, pred_vis, class_na
                loc="lower center", ncol=len(class_names) - 1, fontsize=9)
     fig.suptitle(title, fontsize=10)
     _save_fig(fig, path)
+
+
+def prediction_picture(path: Path, images: dict, classes, visibility, grid, class_names, title: str) -> None:
+    """predict.py's picture: the images, the predicted classes and p(o) over the metric grid
+    (metres, forward up, left left)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.patches import Patch
+
+    fig = plt.figure(figsize=(4 * max(4, len(images)), 8))
+    gs = fig.add_gridspec(2, max(4, len(images)), height_ratios=[1, 1.8])
+    camera_row(fig, gs, images)
+    extent = (grid.y_max, grid.y_min, grid.x_min, grid.x_max)  # columns run from +y (left) to -y
+    for j, (img, t) in enumerate([(colorize_train(classes), "predicted classes"), (visibility, "predicted visibility p(o)")]):
+        ax = fig.add_subplot(gs[1, 2 * j: 2 * j + 2])
+        ax.imshow(img, extent=extent, cmap="magma", vmin=0, vmax=1) if img.ndim == 2 else ax.imshow(img, extent=extent)
+        ax.plot([0], [0], marker="^", color="cyan", ms=6)
+        ax.set_xlabel("y (m, left is +)")
+        ax.set_ylabel("x (m, forward)")
+        ax.set_title(t, fontsize=9)
+    fig.legend(handles=[Patch(facecolor=TRAIN_PALETTE[i] / 255, edgecolor="black", label=n) for i, n in enumerate(class_names) if i > 0],
+               loc="lower center", ncol=len(class_names) - 1, fontsize=9)
+    fig.suptitle(title, fontsize=10)
+    write_figure_atomic(fig, path)
 
 
 def confusion_picture(path: Path, cm: np.ndarray, class_names, title: str):

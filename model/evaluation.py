@@ -11,7 +11,6 @@ two checkpoints on the same frames and bootstraps their difference, pairing the 
 
 from __future__ import annotations
 
-import io
 import time
 from pathlib import Path
 
@@ -21,7 +20,7 @@ import torch.distributed as dist
 from torch.utils.data import DataLoader, Subset
 
 from common.errors import InputError
-from common.files import output_dir, write_bytes_atomic, write_json_atomic, write_text_atomic
+from common.files import output_dir, write_json_atomic, write_text_atomic
 from common.lifetime import DieWithParent
 from dataset_tools import SPLITS, DatasetIndex, read_frame
 
@@ -29,8 +28,8 @@ from .bootstrap import paired_bootstrap, per_scene_arrays, scene_bootstrap
 from .checkpoint import in_precision, load_checkpoint
 from .data import BevDataset
 from .eval_report import comparison_table, confusion_picture, frame_picture, markdown_table
+from .inference import predict, to_device, write_prediction
 from .metrics import BevMetrics, confusion, occlusion_confusion
-from .predict import predict, to_device
 from .run_dir import EvalDir, RunDir, checkpoint_path, frame_name
 
 BANDS = ((0.0, 10.0), (10.0, 20.0), (20.0, 25.0))
@@ -148,9 +147,7 @@ def evaluate_split(model, cfg, index: DatasetIndex, split: str, out: EvalDir, pi
             scores.add_frame(classes, occ, semantic, visibility, ref.weather, ref.scene)
             name = frame_name(ref)
             if save_predictions:
-                buf = io.BytesIO()
-                np.savez_compressed(buf, semantic=classes.numpy().astype(np.uint8), occlusion_logit=occ.numpy())
-                write_bytes_atomic(out.prediction(name), buf.getvalue())
+                write_prediction(out.prediction(name), pred, j)
             if i in picture_at:
                 images = read_frame(ref, cameras=ds.names)["images"]
                 frame_picture(out.frame(split, name), images, semantic.numpy(), visibility.numpy(), classes.numpy(),

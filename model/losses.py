@@ -8,11 +8,11 @@ across DDP processes gives the same gradient as the whole batch in one.
 occlusion (eq. 6): binary cross entropy of the predicted visibility against the true p(o) (soft
 target by default; `binary` thresholds it at 0.5), mean over cells, then over samples.
 total (eq. 7): semantic + lambda * occlusion.
-Camera-view terms (issue 22, off by default): + depth_weight * the cross entropy of the lift's
+Camera-view terms (off by default): + depth_weight * the cross entropy of the lift's
 depth bins against the bin the pixel's ray hits, + camera_seg_weight * the cross entropy of the
-camera-view semantic head (model.camera_targets); each a mean over a sample's valid feature pixels,
+camera-view semantic head (model.feature_targets); each a mean over a sample's valid feature pixels,
 then over samples. With both weights 0 they are not computed and the total is eq. 7's exactly.
-Dice (issue 22, off by default): + dice_weight * (1 - mean soft Dice over the classes), for thin classes.
+Dice (off by default): + dice_weight * (1 - mean soft Dice over the classes), for thin classes.
 """
 
 from __future__ import annotations

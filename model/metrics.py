@@ -83,7 +83,7 @@ class BevMetrics:
 
     @torch.no_grad()
     def update(self, pred, batch: dict):
-        """pred: a model.predict.Prediction of the batch."""
+        """pred: a model.inference.Prediction of the batch."""
         classes, semantic, visibility = pred.classes.cpu(), batch["semantic"].cpu(), batch["visibility"].cpu()
         self.cm += confusion(classes, semantic, visibility, self.k)
         self.occ += occlusion_confusion(pred.occlusion_logit.cpu(), visibility)

@@ -36,7 +36,7 @@ from .cpu import tune_cpu
 from .data import BevDataset, DataError
 from .evaluation import validation_scores
 from .losses import class_weights, total_loss
-from .predict import decode, forward, to_device
+from .inference import decode, forward, to_device
 from .run_dir import RunDir
 
 
@@ -167,7 +167,7 @@ def prepare(cfg: dict, out: Path, quiet: bool = False) -> Run:
 
 def checkpoint_state(run: Run) -> dict:
     return {"config": run.cfg, "rig": run.index.rig.to_dict(), "num_classes": len(run.index.class_names),
-            "model": run.model.state_dict(), "optimizer": run.opt.state_dict(), "step": run.step, "epoch": run.epoch,
+            "class_names": list(run.index.class_names), "model": run.model.state_dict(), "optimizer": run.opt.state_dict(), "step": run.step, "epoch": run.epoch,
             "step_in_epoch": run.step_in_epoch, "best": run.best, "rng": torch.get_rng_state(),
             "cuda_rng": torch.cuda.get_rng_state(run.device) if run.device.type == "cuda" else None}
 

@@ -17,7 +17,7 @@ from blender_scripts.build_scene import _mesh_object, reset_blender, scene_rng
 from blender_scripts.camera import add_rig_camera, add_topdown_camera
 from blender_scripts.materials import MATERIAL_CLASSES, build_materials
 from blender_scripts.render_frame import configure_render, label_mode, render_fisheye, render_topdown
-from blender_scripts.shapes import MeshData
+from blender_scripts.meshes import MeshData
 from dataset_tools.format.exr import write_exr
 from dataset_tools.format.layout import FrameFiles
 from dataset_tools.format.meta import FrameMeta, write_meta

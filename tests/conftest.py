@@ -18,9 +18,11 @@ def _run(*args):
 
 @pytest.fixture(scope="session")
 def tiny_rendered(tmp_path_factory):
-    """The `tiny` preset rendered by real Blender once per test session (read-only: copy to change)."""
+    """The `tiny` preset rendered by real Blender once per test session, with its contact sheets:
+    the pipeline's first two stages (read-only: copy to change)."""
     out = tmp_path_factory.mktemp("tiny_rendered") / "ds"
     _run("dataset_tools", "generate", "--config", "configs/dataset/tiny.yaml", "--out", str(out), "--no-progress")
+    _run("dataset_tools", "contact_sheet", str(out))
     return out
 
 

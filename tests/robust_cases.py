@@ -1,4 +1,4 @@
-"""The hostile-input corpus (issue 15): one row per case, run by tests/test_robustness.py.
+"""The hostile-input corpus: one row per case, run by tests/test_robustness.py.
 
 A case is (id, command, build, code, needles): `build(ctx)` writes the bad input into the case's
 own folder and returns the command's argv; the command must exit with `code` (2 bad input, 1
@@ -96,7 +96,7 @@ add("gen-overrides-scalar", "generate", gen(scenes=[{"recipe": "scenes/highway_s
     needles=("ds.yaml", "scenes[0].overrides"))
 add("gen-overrides-section-scalar", "generate", gen(scenes=[{"recipe": "scenes/highway_straight.yaml", "overrides": {"layout": 3}}]),
     needles=("ds.yaml", "scenes[0].overrides.layout", "mapping"))
-# issue 25: an override is blamed where it was written (the dataset config), not on the recipe it overrides
+# an override is blamed where it was written (the dataset config), not on the recipe it overrides
 add("gen-overrides-frames-scalar", "generate", gen(scenes=[{"recipe": "scenes/highway_straight.yaml", "overrides": {"frames": 5}}]),
     needles=("ds.yaml", "scenes[0].overrides.frames", "mapping"))
 add("gen-overrides-frames-count-zero", "generate", gen(scenes=[{"recipe": "scenes/highway_straight.yaml", "overrides": {"frames": {"count": 0}}}]),
@@ -540,7 +540,7 @@ def _(ctx):
 
 
 
-# ------------------------------------------------------------------ stitch, export-woodscape (issue 24)
+# ------------------------------------------------------------------ stitch, export-woodscape
 
 def _first_frame(ds):
     return ds / json.loads((ds / "manifest.jsonl").read_text().splitlines()[0])["dir"]
@@ -589,7 +589,7 @@ def _(ctx):
     return [str(ctx.ds()), str(ctx.out)]
 
 
-# ------------------------------------------------------------------ issue 34: calibrations, images, rigs, exports, comparisons
+# ------------------------------------------------------------------ calibrations, images, rigs, exports, comparisons
 
 
 def png_header(width: int, height: int) -> bytes:

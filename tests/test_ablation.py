@@ -65,12 +65,12 @@ def test_every_row_trains_is_scored_and_lands_in_the_tables(tiny_with_test_split
     assert "0.796" in md and "0.659" in md and "Intrinsics + embedding" in md  # the paper's numbers beside ours
     assert "## Verdicts on the paper's claims" in md and "| ours - rectified | medium* | 1, 1 | 2 |" in md
     assert all(c["one_seed"] for c in tables["claims"]) and "(one seed: training noise not in the interval, provisional)" in md
-    # issue 22's rows: every split, the tolerance IoU beside the strict one, a verdict against `ours` each
+    # rows: every split, the tolerance IoU beside the strict one, a verdict against `ours` each
     assert {e["row"] for e in tables["table_3"]} == {"ours", *(row for _, row in ablation.SUPERVISION)}
     assert all(e["ours"]["iou_tol/lane_marking"]["seeds"] == 1 for e in tables["table_3"])
     assert [c["claim"] for c in tables["our_claims"]] == [c[0] for c in ablation.OUR_CLAIMS]
     assert all(c["complete"] is False and c["verdict"] in ("reproduced", "contradicted", "undecided") for c in tables["our_claims"])  # no heldout here
-    assert "## Verdicts on the supervision rows (issue 22) and bf16 (issue 23)" in md and "| ours_depth - ours | hard* |" in md
+    assert "## Verdicts on the supervision rows and bf16" in md and "| ours_depth - ours | hard* |" in md
     recipe = __import__("torch").load(out / "ours_recipe" / "seed0" / "latest.pt", weights_only=False)["config"]
     assert recipe["loss"]["depth_weight"] == 1.0 and recipe["loss"]["camera_seg_weight"] == 0.5 and recipe["train"]["lr_schedule"] == "cosine"
 

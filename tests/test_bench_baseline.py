@@ -1,4 +1,4 @@
-"""bench.model's baseline comparison (issue 23): a commit's tree written aside and measured in
+"""bench.model's baseline comparison: a commit's tree written aside and measured in
 fresh processes with its own code."""
 
 import subprocess

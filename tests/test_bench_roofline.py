@@ -1,4 +1,4 @@
-"""bench.model's roofline (issue 23): a training step's GFLOP is counted from the forward pass
+"""bench.model's roofline: a training step's GFLOP is counted from the forward pass
 times 3; that factor is checked here on the scratch trunk, whose backward the flop counter counts
 right (it has no grouped convolutions), against the counter's own forward + backward."""
 

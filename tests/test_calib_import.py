@@ -86,7 +86,7 @@ def test_opencv_bad_files_are_one_line_naming_the_field(tmp_path):
         opencv_fisheye_camera(bad)
     with pytest.raises(CalibrationError, match="cannot tell its format"):
         import_calibration(_write(tmp_path / "x.yaml", "a: 1\n"))
-    # issue 34: negative rows/cols, aliases (a billion numbers once expanded), a lost digit
+    # negative rows/cols, aliases (a billion numbers once expanded), a lost digit
     bad.write_text((SV / "front.yaml").read_text().replace("   rows: 4\n   cols: 1", "   rows: -2\n   cols: -2", 1))
     with pytest.raises(CalibrationError, match=r"bad.yaml: dist_coeffs: needs whole 'rows' and 'cols' >= 1, got -2 x -2"):
         opencv_fisheye_camera(bad)
@@ -134,7 +134,7 @@ def _omnidir_file(path):
 
 
 def test_omnidir_file_is_mei_exactly(tmp_path):
-    """Issue 34: a cv2.omnidir calibration (with xi) was read as cv2.fisheye and reported exact, a
+    """A cv2.omnidir calibration (with xi) was read as cv2.fisheye and reported exact, a
     pixel landing ~200 px off. It is Mei's model: our `mei` camera, exact against the formula."""
     imp = import_calibration(_omnidir_file(tmp_path / "omni.yaml"))
     cam = imp.camera
@@ -250,7 +250,7 @@ def test_kalibr_camchain(tmp_path):
     t10[0, 3] = -0.11
     np.testing.assert_allclose(cams["cam1"].cam_to_ref, c0.cam_to_ref @ np.linalg.inv(t10), atol=1e-12)
     assert cams["cam2"].camera.model == "double_sphere" and cams["cam2"].camera.xi == -0.2
-    # pinhole-radtan is Mei's model with xi = 0 (issue 34: exact, no longer fitted): OpenCV's own
+    # pinhole-radtan is Mei's model with xi = 0 (exact, no longer fitted): OpenCV's own
     # pinhole projection with k1, k2, p1, p2 is the reference
     c3 = cams["cam3"]
     assert c3.camera.model == "mei" and c3.residual_px == 0 and not c3.fitted
@@ -261,7 +261,7 @@ def test_kalibr_camchain(tmp_path):
 
 
 def test_kalibr_omni_radtan_is_mei_exactly(tmp_path):
-    """Kalibr's omni + radtan (fitted before issue 34, 6.8 px reported where it reached 39 px) is Mei's
+    """Kalibr's omni + radtan (once fitted, 6.8 px reported where it reached 39 px) is Mei's
     model: exact against the formula over the whole field of view."""
     text = CAMCHAIN.replace("distortion_coeffs: [0.0, 0.0, 0.0, 0.0]\n  distortion_model: none\n  intrinsics: [0.8, 520.0",
                             "distortion_coeffs: [-0.12, 0.02, 0.0004, -0.0002]\n  distortion_model: radtan\n  intrinsics: [0.8, 520.0")
@@ -288,7 +288,7 @@ def test_kalibr_bad_field(tmp_path):
     path = _write(tmp_path / "camchain.yaml", CAMCHAIN.replace("resolution: [640, 480]\n  rostopic", "resolution: [640]\n  rostopic"))
     with pytest.raises(CalibrationError, match=r"cam0: resolution: must have 2 numbers, has 1"):
         kalibr_cameras(path)
-    # issue 34: a T_cam_imu with determinant -1 is a reflection (the camera would look backwards)
+    # a T_cam_imu with determinant -1 is a reflection (the camera would look backwards)
     path = _write(tmp_path / "camchain.yaml", CAMCHAIN.replace("- [0.0, 0.0, -1.0, 0.10]", "- [0.0, 0.0, 1.0, 0.10]", 1))
     with pytest.raises(CalibrationError, match=r"cam0: T_cam_imu: a reflection \(determinant -1\), not a rotation"):
         kalibr_cameras(path)
@@ -323,7 +323,7 @@ def test_ocamcalib_fitted_with_residual(tmp_path):
     assert (cam.width, cam.height, cam.cx, cam.cy, cam.fx) == (1280, 960, 639.7, 481.2, 250.0)
     # a polynomial in rho fitted by one in theta: close, not exact; the residual covers the whole field of
     # view, here the whole image (136 degrees from the axis in the corners; measured 2.99 px, 0.11 px
-    # within 100 degrees, which is all that was reported before issue 34)
+    # within 100 degrees, which is all that was once reported)
     assert imp.fitted and 1.0 < imp.residual_px < 5.0 and imp.describe().startswith("opencv_fisheye (fitted, residual")
     dense = np.stack(np.meshgrid(np.arange(0, 1280, 3.0), np.arange(0, 960, 3.0)), -1).reshape(-1, 2)
     rays = m.cam2world(dense)
@@ -348,7 +348,7 @@ def test_ocamcalib_bad_field(tmp_path):
                   .replace("3 -2.5", "4 -2.5"))
     with pytest.raises(CalibrationError, match=r"calib_results.txt: pol: the length 4 does not match the 3 coefficients"):
         read_ocamcalib(path)
-    # issue 34: a centre outside the image (a lost decimal point) was fitted from no pixel and reported exact
+    # a centre outside the image (a lost decimal point) was fitted from no pixel and reported exact
     path = _write(tmp_path / "calib_results.txt", _ocam_text([-250.0, 0, 1e-3], [300.0], [4812, 6397], [1.0, 0.0, 0.0], (960, 1280)))
     with pytest.raises(CalibrationError, match=r"calib_results.txt: center \(row, column\): \(6397, 4812\) is outside the 1280x960 image"):
         ocamcalib_camera(path)

@@ -1,4 +1,4 @@
-"""model.cpu (issue 23): the CPU thread count and memory format a run uses, and that they change
+"""model.cpu: the CPU thread count and memory format a run uses, and that they change
 rounding only."""
 
 import copy

@@ -1,4 +1,4 @@
-"""Camera-view targets (issue 22): the depth bin and the training class of what each feature
+"""Camera-view targets: the depth bin and the training class of what each feature
 pixel's ray hits, on a real tiny Blender render, through the view transforms and the rectification;
 the targets file; the losses (both weights 0 = today's loss, exactly)."""
 
@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 import torch
 
-from dataset_tools.format.camera_targets import CAMERA_TARGETS, camera_targets, decode_distance, derive_camera_targets
+from dataset_tools.format.camera_targets import (CAMERA_TARGETS, camera_targets, decode_distance, derive_camera_targets,
+                                                write_camera_targets)
 from dataset_tools.format.exr import read_exr
 from dataset_tools.format.layout import DatasetError, FrameFiles
 from dataset_tools.format.reader import DatasetIndex
@@ -16,7 +17,7 @@ from dataset_tools.labels.classes import CLASS_IDS, class_lut
 from geometry.cameras import camera_from_dict
 from geometry.rig import Rig, RigCamera
 from model.augment import ViewTransform, base_transform, transform_camera, warp_image
-from model.camera_targets import EGO, camera_targets as feature_targets, distance_bin, feature_passes, source_pixels
+from model.feature_targets import EGO, camera_targets as feature_targets, distance_bin, feature_passes, source_pixels
 from model.config import validate
 from model.frustum import Frustum, feature_camera
 
@@ -208,14 +209,17 @@ def test_camera_semantic_target_is_the_semantic_pass_in_the_papers_classes(tiny_
     assert {3, 4} <= classes, "street and background are seen"
 
 
-def test_targets_file_is_derived_once_and_read_back(tiny_dataset, tmp_path):
+def test_targets_file_is_written_by_fuse_and_read_back(tiny_dataset, tmp_path):
     _, ref = frame_of(tiny_dataset)
+    assert (ref.dir / CAMERA_TARGETS).is_file(), "the fuse stage writes every frame's targets"
     frame = tmp_path / "frame"
     shutil.copytree(ref.dir, frame)
+    path = frame / CAMERA_TARGETS
+    path.unlink()
     names = ["front", "rear"]
     got = camera_targets(frame, names)
-    path = frame / CAMERA_TARGETS
-    assert path.is_file()
+    assert not path.exists(), "a reader derives in memory and writes nothing"
+    write_camera_targets(frame, derive_camera_targets(frame, names))
     for n in names:
         dist, sem = exr_passes(ref, n)
         d = decode_distance(got[n][0])
@@ -239,7 +243,8 @@ def test_dataset_carries_targets_only_for_training_with_a_weight(tiny_dataset, t
     shutil.copytree(tiny_dataset, root)
     off = BevDataset(root, "train", config(root), train=True)[0]
     assert "depth_target" not in off and "camera_semantic" not in off
-    assert not list(root.glob(f"*/*/{CAMERA_TARGETS}")), "no weight, no targets file"
+    for f in root.glob(f"*/*/{CAMERA_TARGETS}"):
+        f.unlink()  # a data set fused before the fuse stage wrote them: the loader derives them in memory
     cfg = config(root, depth_weight=1.0)
     assert "depth_target" not in BevDataset(root, "train", cfg, train=False)[0], "not for validation / eval"
     ds = BevDataset(root, "train", cfg, train=True)
@@ -248,7 +253,7 @@ def test_dataset_carries_targets_only_for_training_with_a_weight(tiny_dataset, t
     assert s["depth_target"].shape == (4, h, w) and s["camera_semantic"].shape == (4, h, w)
     assert s["depth_target"].dtype == torch.int64 and (s["depth_target"] >= 0).float().mean() > 0.3
     assert int(s["depth_target"].max()) < 24
-    assert (ds.refs[0].dir / CAMERA_TARGETS).is_file()
+    assert not list(root.glob(f"*/*/{CAMERA_TARGETS}")), "the loader writes nothing into the data set"
 
 
 def _batch_and_models(root, **loss):
@@ -314,6 +319,7 @@ def test_training_with_both_weights_runs_and_its_checkpoint_loads(tiny_dataset, 
 
     root = tmp_path / "ds"
     shutil.copytree(tiny_dataset, root)
+    before = {p: p.stat().st_mtime_ns for p in root.rglob("*")}
     cfg = config(root, depth_weight=1.0, camera_seg_weight=0.5)
     cfg["train"].update({"max_steps": 2, "threads": 1, "image_every": 0, "log_every": 1})
     path = tmp_path / "c.yaml"
@@ -323,4 +329,5 @@ def test_training_with_both_weights_runs_and_its_checkpoint_loads(tiny_dataset, 
     assert r.returncode == 0, r.stderr[-2000:]
     model, loaded, ckpt = load_checkpoint(tmp_path / "run" / "latest.pt")
     assert ckpt["step"] == 2 and loaded["loss"]["depth_weight"] == 1.0 and model.camera_head is not None
-    assert len(list(root.glob(f"*/*/{CAMERA_TARGETS}"))) >= 4, "targets derived for the frames it trained on"
+    assert {p: p.stat().st_mtime_ns for p in root.rglob("*") if p.name != ".lock"} == \
+        {p: t for p, t in before.items() if p.name != ".lock"}, "training leaves the data set as it was"

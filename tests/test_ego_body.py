@@ -20,7 +20,7 @@ from dataset_tools.format.meta import read_meta
 from dataset_tools.format.passes import read_frame_passes
 from dataset_tools.format.png import read_png
 from dataset_tools.generation.recipe import load_recipe
-from dataset_tools.labels import fusion
+from dataset_tools.labels import label_fusion
 from dataset_tools.labels.classes import CLASS_IDS, DEFAULT_CLASS_MAP
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -68,7 +68,7 @@ def test_ego_body_in_every_camera_never_in_labels_or_counts(sampled):
     files = FrameFiles(sampled / "s5_0000" / "000000")
     meta = read_meta(files.dir)
     box = meta.ego["box"]
-    assert box[0] < box[1] and box[2] < box[3] and fusion.ego_box(meta, fusion.FusionConfig()) == tuple(box)
+    assert box[0] < box[1] and box[2] < box[3] and label_fusion.ego_box(meta, label_fusion.FusionConfig()) == tuple(box)
     for name in files.camera_names():
         ch = read_exr(files.camera_exr(name))
         ego = ch["semantic"] == EGO
@@ -80,20 +80,20 @@ def test_ego_body_in_every_camera_never_in_labels_or_counts(sampled):
     assert not (td["all.semantic"] == EGO).any() and not (td["ground.semantic"] == EGO).any()
 
     # labels: the ego class maps to invalid; its footprint is invalid; its pixels are never counted
-    cfg = fusion.FusionConfig()
+    cfg = label_fusion.FusionConfig()
     assert DEFAULT_CLASS_MAP["ego"] == "invalid" and cfg.group_lut()[EGO] == 0
     meta, rig, cameras, topdown = read_frame_passes(files.dir)
     grid = meta.grid()
-    out = fusion.fuse_passes(rig, cameras, topdown, grid, cfg, fusion.ego_box(meta, cfg))
-    foot = fusion.ego_mask(grid, box)
+    out = label_fusion.fuse_passes(rig, cameras, topdown, grid, cfg, label_fusion.ego_box(meta, cfg))
+    foot = label_fusion.ego_mask(grid, box)
     assert foot.any() and (out["semantic"][foot] == 0).all() and (out["visibility"][foot] == 0).all()
-    from dataset_tools.labels import visibility as V
+    from dataset_tools.labels.visibility import ray_tables
 
-    tables = V.ray_tables(rig)
+    tables = ray_tables(rig)
     for name, p in cameras.items():
         without = dict(p, distance=np.where(p["semantic"] == EGO, np.inf, p["distance"]).astype(np.float32))
-        got, _ = fusion.camera_counts(tables[name], p, grid, cfg)
-        ref, _ = fusion.camera_counts(tables[name], without, grid, cfg)
+        got, _ = label_fusion.camera_counts(tables[name], p, grid, cfg)
+        ref, _ = label_fusion.camera_counts(tables[name], without, grid, cfg)
         assert np.array_equal(got, ref), name
 
 

@@ -82,7 +82,7 @@ def test_export_woodscape_reads_back(tiny_dataset, tmp_path):
 
 
 def test_export_replaces_an_earlier_export_and_a_bad_frame_leaves_it_whole(tiny_dataset, tmp_path):
-    """Issue 34: exporting into an earlier, larger export left its stale frames beside the new ones;
+    """Exporting into an earlier, larger export left its stale frames beside the new ones;
     a missing camera PNG exited 1 with a partial export; a 0-byte one was copied and exit 0."""
     import json as _json
     import shutil

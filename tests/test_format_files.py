@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from dataset_tools.format.audit import audit_metric, read_audit, write_audit
+from dataset_tools.format.audit_file import audit_metric, read_audit, write_audit
 from dataset_tools.format.index import INDEX_VERSION, build_index, read_index, write_index
 from dataset_tools.format.labels import label_problems, read_labels, write_labels
 from dataset_tools.format.layout import DatasetError, FrameFiles, Manifest

@@ -13,7 +13,7 @@ from dataset_tools.format.meta import read_meta
 from dataset_tools.format.passes import read_topdown
 from dataset_tools.labels.classes import CLASS_IDS
 from dataset_tools.labels.coverage import reduce_supersampled
-from dataset_tools.labels.fusion import FusionConfig, effective_min_pixels, effective_tau, fuse_frame
+from dataset_tools.labels.label_fusion import FusionConfig, effective_min_pixels, effective_tau, fuse_frame
 from dataset_tools.qa.audit import audit_labels
 from geometry.bev import BevGrid
 from geometry.rig import Rig, load_rig

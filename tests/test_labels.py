@@ -9,7 +9,7 @@ from dataset_tools.labels.classes import CLASS_IDS, class_lut
 from dataset_tools.format.labels import write_labels
 from dataset_tools.format.passes import read_topdown
 from dataset_tools.format.reader import DatasetIndex, downsample_labels, read_frame
-from dataset_tools.labels.fusion import FusionConfig, fuse_frame
+from dataset_tools.labels.label_fusion import FusionConfig, fuse_frame
 from geometry.bev import BevGrid
 from geometry.rig import Rig, load_rig
 from testing.constructed import Box, render_camera, write_dataset, write_frame

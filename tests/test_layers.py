@@ -51,7 +51,7 @@ AFTER_MERGE: dict = {}  # contracts known to be broken, with the reason (none)
 
 @pytest.mark.parametrize("contract", [
     pytest.param(c, marks=pytest.mark.xfail(c in AFTER_MERGE, strict=True,
-                                            reason=f"until issue 20's branches merge (then delete from AFTER_MERGE): {AFTER_MERGE.get(c)}"))
+                                            reason=f"until branches merge (then delete from AFTER_MERGE): {AFTER_MERGE.get(c)}"))
     for c in _contract_ids()
 ])
 def test_contract_kept(contract):

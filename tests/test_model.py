@@ -19,7 +19,7 @@ from model.config import ConfigError, validate
 from model.frustum import camera_point_cells, depth_bins, feature_camera
 from model.losses import class_weights, occlusion_loss, semantic_loss
 from model.metrics import BevMetrics, confusion
-from model.predict import decode
+from model.inference import decode
 from model.splat import splat
 
 GRID = BevGrid(res=0.25)
@@ -259,12 +259,13 @@ def test_every_shipped_config_validates():
 def test_the_makefiles_default_chain_agrees_with_itself():
     """`make dataset` writes data/$(PRESET); `make train`'s default config must train on that folder
     and validate on a split the preset has."""
-    from dataset_tools.generation.config import load_config as load_dataset_config
+    from dataset_tools.generation.dataset_config import load_config as load_dataset_config
     from model.config import load_config
 
     make = Path("Makefile").read_text()
     preset = re.search(r"^PRESET \?= (\S+)$", make, re.M).group(1)
     config = re.search(r"^CONFIG \?= (\S+)$", make, re.M).group(1)
+    assert config == __import__("train").DEFAULT_CONFIG, "one default training config: train.py's is the Makefile's"
     cfg = load_config(config)
     assert cfg["data"]["root"] == f"data/{preset}", (config, cfg["data"]["root"], preset)
     splits = {s["split"] for s in load_dataset_config(f"configs/dataset/{preset}.yaml")["scenes"]}
@@ -307,6 +308,13 @@ def test_an_older_checkpoint_is_upgraded_in_one_place(tmp_path):
     save_checkpoint(path, {"config": old, "rig": rig.to_dict(), "model": model.state_dict()})
     loaded, cfg2, ck = load_checkpoint(path, expect_config=cfg)
     assert cfg2["model"]["trunk"] == "scratch" and cfg2["data"]["rectify"] == "none" and ck["num_classes"] == NUM_CLASSES == 5
+    assert ck["class_names"] == ["invalid", "vehicle", "lane_marking", "street", "background"], "old: the default classes"
+    mine = ["invalid", "ground", "paint", "car", "other"]
+    save_checkpoint(tmp_path / "new.pt", {"config": cfg, "rig": rig.to_dict(), "model": model.state_dict(), "class_names": mine})
+    assert load_checkpoint(tmp_path / "new.pt")[2]["class_names"] == mine, "a checkpoint carries its class names"
+    save_checkpoint(tmp_path / "bad.pt", {"config": cfg, "rig": rig.to_dict(), "model": model.state_dict(), "class_names": mine[:3]})
+    with pytest.raises(CheckpointError, match=r"bad.pt: class_names: must be a list of 5 names"):
+        load_checkpoint(tmp_path / "bad.pt")
     x = torch.rand(1, 4, 3, 40, 64)
     model.eval(), loaded.eval()
     assert torch.equal(model(x)["semantic"], loaded(x)["semantic"])

@@ -1,4 +1,4 @@
-"""model.precision (issue 23): bf16 autocast of the trunk and the BEV encoder, with the lift, the
+"""model.precision: bf16 autocast of the trunk and the BEV encoder, with the lift, the
 splat and the outputs in float32; fp32 (the default) is today's model exactly."""
 
 import pytest

@@ -38,11 +38,12 @@ def test_predict_equals_eval_on_rendered_frames_and_runs_on_real_images(tiny_dat
     for ref in (r for r in refs if r.dir.parent == scene):
         ours = np.load(tmp_path / "pred" / f"{ref.dir.name}.npz")
         theirs = np.load(tmp_path / "eval" / "predictions" / f"{ref.scene}_{ref.frame:06d}.npz")
-        np.testing.assert_array_equal(ours["semantic"], theirs["semantic"])
-        np.testing.assert_array_equal(ours["occlusion_logit"], theirs["occlusion_logit"])
+        assert sorted(ours.files) == sorted(theirs.files) == ["occlusion_logit", "semantic", "visibility"], "one format"
+        for k in ours.files:
+            np.testing.assert_array_equal(ours[k], theirs[k])
         assert (tmp_path / "pred" / f"{ref.dir.name}.png").stat().st_size > 10_000
 
-    # one rendered frame folder is one frame (issue 34: its labels/ folder was taken for a frame)
+    # one rendered frame folder is one frame (its labels/ folder was taken for a frame)
     one = _run("predict.py", "--checkpoint", ckpt, "--frames", refs[0].dir, "--out", tmp_path / "one", "--threads", "1")
     assert sorted(q.name for q in (tmp_path / "one").iterdir()) == [f"{refs[0].dir.name}.npz", f"{refs[0].dir.name}.png"]
     ours = np.load(tmp_path / "one" / f"{refs[0].dir.name}.npz")
@@ -75,31 +76,31 @@ def test_predict_bad_input_is_one_line(tmp_path):
 
 
 def test_images_of_another_size_bring_their_camera():
-    import predict
+    from dataset_tools.stitch import rig_of_images
     from geometry.rig import load_rig
 
     rig = load_rig(SV / "rig.yaml")
-    half = predict.rig_of_images(rig, {n: np.zeros((320, 480, 3), np.uint8) for n in rig.names})
+    half = rig_of_images(rig, {n: np.zeros((320, 480, 3), np.uint8) for n in rig.names})
     for n in rig.names:
         a, b = rig[n].camera, half[n].camera
         assert (b.width, b.height) == (480, 320) and b.fx == a.fx / 2 and b.cx == (a.cx + 0.5) / 2 - 0.5 and b.k == a.k
         np.testing.assert_array_equal(half[n].cam_to_ego, rig[n].cam_to_ego)
-    same = predict.rig_of_images(rig, {n: np.zeros((640, 960, 3), np.uint8) for n in rig.names})
+    same = rig_of_images(rig, {n: np.zeros((640, 960, 3), np.uint8) for n in rig.names})
     assert same.to_dict() == rig.to_dict()
 
 
 def test_cameras_are_matched_by_name_for_a_pooling_with_per_camera_parameters(tiny_dataset, tmp_path):
-    """Issue 34: the README listed the cameras front, rear, left, right, training used front, left,
+    """The README listed the cameras front, rear, left, right, training used front, left,
     rear, right, and predict matched them by position: with weighted_sum pooling (a learned W_i per
     camera, the paper's eq. 2) rear and left would swap silently. Now they are matched by name."""
     import torch
 
-    import predict
     from dataset_tools.format.reader import DatasetIndex
     from dataset_tools.stitch import read_images
     from geometry.rig import Rig
     from model.checkpoint import build_model
     from model.config import load_config
+    from model.inference import PredictError, RigModel
     from test_train import label_grid, write_config
 
     index = DatasetIndex(tiny_dataset)
@@ -113,16 +114,16 @@ def test_cameras_are_matched_by_name_for_a_pooling_with_per_camera_parameters(ti
         for i in range(len(rig)):
             model.pool.weight[i].mul_(0.25 + 0.5 * i)
     images = read_images(index.frames("train")[0].dir, rig.names)
-    want = predict.RigModel(model, cfg, rig.to_dict(), rig)(images).occlusion_logit
+    want = RigModel(model, cfg, rig.to_dict(), rig)(images).occlusion_logit
     listed = Rig([rig[n] for n in ("front", "rear", "left", "right")], rig.name)  # a rig file in the README's old order
-    got = predict.RigModel(model, cfg, rig.to_dict(), listed)(images).occlusion_logit
+    got = RigModel(model, cfg, rig.to_dict(), listed)(images).occlusion_logit
     torch.testing.assert_close(got, want, rtol=0, atol=0)
     # matching by position (the old behaviour, now only what an explicit --cameras asks for) differs
-    swapped = predict.RigModel(model, cfg, rig.to_dict(), listed, cameras=["front", "rear", "left", "right"])(images).occlusion_logit
+    swapped = RigModel(model, cfg, rig.to_dict(), listed, cameras=["front", "rear", "left", "right"])(images).occlusion_logit
     assert (swapped - want).abs().max() > 1e-3
     # a rig of 3 cameras is refused naming the option and file
     import pytest
 
     three = Rig([rig[n] for n in ("front", "left", "rear")], "mine")
-    with pytest.raises(predict.PredictError, match=r"--rig my.yaml: 3 cameras \(front, left, rear\), the model was trained with 4"):
-        predict.RigModel(model, cfg, rig.to_dict(), three, "--rig my.yaml")
+    with pytest.raises(PredictError, match=r"--rig my.yaml: 3 cameras \(front, left, rear\), the model was trained with 4"):
+        RigModel(model, cfg, rig.to_dict(), three, "--rig my.yaml")

@@ -1,4 +1,4 @@
-"""Issue 25: Ray faults. A killed `fuse --backend ray` leaves no process of its Ray instance behind;
+"""Ray faults. A killed `fuse --backend ray` leaves no process of its Ray instance behind;
 a cluster whose every node is gone stops the run within a bounded time (common.backend's node
 timeout, docs/scaling.md) with one line, and the same command resumes once a node is back."""
 

@@ -1,4 +1,4 @@
-"""The training recipe's options (issue 22): soft Dice for thin classes, warm-up and cosine decay."""
+"""The training recipe's options: soft Dice for thin classes, warm-up and cosine decay."""
 
 import math
 

@@ -1,4 +1,4 @@
-"""The static HTML QA report (dataset_tools.qa.report): built for the tiny data set, regenerated
+"""The static HTML QA report (dataset_tools.qa.html_report): built for the tiny data set, regenerated
 incrementally, and loaded in headless Chromium (Debian's chromium + chromium-driver, installed by
 `make browser` when missing)."""
 
@@ -16,7 +16,7 @@ import pytest
 
 from dataset_tools.format.layout import AUDIT, REPORT_DIR, FrameFiles
 from dataset_tools.format.png import read_png
-from dataset_tools.qa.report import build_report, report_size
+from dataset_tools.qa.html_report import build_report, report_size
 
 ROOT = Path(__file__).resolve().parents[1]
 CHROME_FLAGS = ("--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",

@@ -1,4 +1,4 @@
-"""Issue 15: every entry point survives hostile input. The corpus is tests/robust_cases.py; each
+"""Every entry point survives hostile input. The corpus is tests/robust_cases.py; each
 case runs its command in-process through the CLI boundary (`common.cli.run_cli`) and must exit with
 the case's code, print exactly one line on stderr (no traceback) naming the file and field, and
 write nothing outside its output folder, leaving no temp file behind."""
@@ -294,7 +294,7 @@ EVAL_OUTPUTS = ("metrics.json", "table.md", "confusion_train.png", "frame_train_
 @pytest.mark.parametrize("free_kb", [0, 4, 64])
 @pytest.mark.parametrize("command", ["train", "eval"])
 def test_a_full_disk_at_any_point_fails_loudly_or_writes_everything(command, free_kb, tmp_path, mini_dataset, request):
-    """Issue 25: however little room is left, the command either writes every output whole (exit
+    """However little room is left, the command either writes every output whole (exit
     0) or exits 1 with one line naming the folder; never exit 0 with an output missing, never a
     temp file left behind."""
     ctx = Ctx(tmp_path, mini_dataset, request)
@@ -439,7 +439,7 @@ def wait_until(cond, p: subprocess.Popen, timeout: float = 120, what: str = ""):
 
 def test_kill_9_of_generate_leaves_no_worker_writing(tmp_path, request):
     """Only the driver is killed (not its process group): its Blender worker must die with it, within
-    1 s (issue 25: common.lifetime). (That
+    1 s (common.lifetime). (That
     a killed run resumes to the same files is tests/test_scenes.py::test_killed_run_resumes_to_the_same_files.)"""
     import time
 
@@ -500,7 +500,7 @@ def test_kill_during_checkpoint_save_leaves_no_temp_after_the_next_run(tmp_path,
 
 
 def test_kill_9_of_fuse_with_workers_leaves_no_process(tmp_path, tiny_dataset):
-    """Issue 25: `fuse --workers 2` killed with SIGKILL: its pool processes die with it (within 1 s)."""
+    """`fuse --workers 2` killed with SIGKILL: its pool processes die with it (within 1 s)."""
     ds = tmp_path / "ds"
     shutil.copytree(tiny_dataset, ds)
     p = subprocess.Popen([sys.executable, "-m", "dataset_tools", "fuse", str(ds), "--force", "--workers", "2", "--no-progress"],
@@ -510,7 +510,7 @@ def test_kill_9_of_fuse_with_workers_leaves_no_process(tmp_path, tiny_dataset):
 
 
 def test_kill_9_of_train_with_loader_workers_leaves_no_process(tmp_path, mini_dataset, request):
-    """Issue 25: train.py with data.num_workers 2 killed with SIGKILL: its loader workers die with it."""
+    """Train.py with data.num_workers 2 killed with SIGKILL: its loader workers die with it."""
     ctx = Ctx(tmp_path, mini_dataset, request)
     cfg = ctx.train_config(data={"num_workers": 2}, train={"max_steps": 100000, "epochs": 100000})
     p = subprocess.Popen([sys.executable, "train.py", "--config", str(cfg), "--out", str(tmp_path / "run"), "--quiet"],
@@ -521,7 +521,7 @@ def test_kill_9_of_train_with_loader_workers_leaves_no_process(tmp_path, mini_da
 
 @pytest.mark.parametrize("damage", ["zero-byte", "truncated", "other-size"])
 def test_resume_redoes_damaged_labels_with_one_notice(damage, tmp_path, mini_dataset):
-    """Issue 25: fuse without --force trusts no label it skips: a zero-byte, truncated or wrongly
+    """Fuse without --force trusts no label it skips: a zero-byte, truncated or wrongly
     sized label PNG is redone (with one notice line naming it); whole frames are left alone."""
     import cv2
 

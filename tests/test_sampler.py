@@ -12,7 +12,7 @@ from blender_scripts.build_scene import scene_rng
 from blender_scripts.layouts import build_layout
 from blender_scripts.traffic import ego_pose, place_traffic
 from common.errors import ConfigError
-from dataset_tools.generation.config import load_config
+from dataset_tools.generation.dataset_config import load_config
 from dataset_tools.generation.recipe import FAMILIES, WEATHER_PRESETS, validate_recipe
 from dataset_tools.generation.sampler import SAMPLE, sample_recipes
 
@@ -63,7 +63,7 @@ def build_sampled(count: int, seed: int, families=None, frames: int = 4) -> tupl
 
 
 def test_many_sampled_recipes_of_every_family_build():
-    """Issue 34: about 1 in 400 sampled urban blocks (a short block of a wide street with a bridge)
+    """About 1 in 400 sampled urban blocks (a short block of a wide street with a bridge)
     failed in the layout builder (`min() arg is an empty sequence`): invisible in 30 recipes, certain
     in thousands. The sampler now draws only what builds. Here 400 recipes of every family and 300
     urban blocks (the failing family; about 30 s on a loaded 2-core machine); SAMPLED_LAYOUTS=5000 for the issue's
@@ -143,9 +143,9 @@ def test_heldout_seeds_never_overlap_training_and_held_out_families_stay_out(tmp
 
 
 def test_a_scene_that_fails_to_build_does_not_stop_the_others():
-    """Issue 34: `generate` stopped the whole data set at the first scene whose layout failed. The
+    """`generate` stopped the whole data set at the first scene whose layout failed. The
     driver's pool slots now give that scene up (its error names the scene and its recipe), finish
-    every other scene, and the run exits 1 (generation.driver.run); the same command redoes only
+    every other scene, and the run exits 1 (generation.driver.render); the same command redoes only
     what is missing. Fake workers here: the logic, without Blender."""
     import queue
     from types import SimpleNamespace

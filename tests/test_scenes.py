@@ -19,7 +19,7 @@ import yaml
 
 from dataset_tools.labels.classes import CLASS_IDS, OVERHEAD_OCCLUDERS
 from dataset_tools.format.exr import read_exr
-from dataset_tools.generation.config import ConfigError, load_config
+from dataset_tools.generation.dataset_config import ConfigError, load_config
 from dataset_tools.generation.recipe import FAMILIES, RecipeError, load_recipe, validate_recipe
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -125,7 +125,7 @@ def test_render_task_and_worker_messages_round_trip(tmp_path):
 def test_frames_use_the_schemas_topdown_defaults(scene_tiny_run):
     """tiny.yaml leaves topdown.supersample and marking_share out: the worker renders with the
     dataset config schema's defaults (no second default in the worker)."""
-    from dataset_tools.generation.config import SCHEMA
+    from dataset_tools.generation.dataset_config import SCHEMA
 
     assert "supersample" not in yaml.safe_load(TINY.read_text())["topdown"]
     defaults = SCHEMA.fields["topdown"].defaults()

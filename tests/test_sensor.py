@@ -10,7 +10,7 @@ import yaml
 
 from common.errors import ConfigError
 from dataset_tools.generation import sensor
-from dataset_tools.generation.config import QUALITY, load_config
+from dataset_tools.generation.dataset_config import QUALITY, load_config
 from geometry.rig import load_rig
 
 ALL = {e: True for e in sensor.EFFECTS}

@@ -56,7 +56,7 @@ def test_stitch_command_on_a_rendered_frame(tiny_dataset, tmp_path):
 
 
 def test_16_bit_images_are_scaled_not_clipped(tmp_path):
-    """Issue 34: a 16-bit PNG was clipped to 8 bits (a real image became 95 % white); it is scaled."""
+    """A 16-bit PNG was clipped to 8 bits (a real image became 95 % white); it is scaled."""
     import cv2
     import numpy as np
 

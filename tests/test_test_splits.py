@@ -13,7 +13,7 @@ from blender_scripts.build_scene import scene_rng
 from blender_scripts.layouts import build_layout
 from blender_scripts.traffic import ego_pose, place_traffic
 from common.errors import ConfigError
-from dataset_tools.generation.config import load_config
+from dataset_tools.generation.dataset_config import load_config
 from dataset_tools.generation.driver import plan
 from dataset_tools.generation.sampler import SAMPLE, sample_recipes
 

@@ -1,11 +1,11 @@
-"""The tolerance IoU of lane markings (issue 22): a marking predicted within one cell counts."""
+"""The tolerance IoU of lane markings: a marking predicted within one cell counts."""
 
 import math
 
 import torch
 
 from model.metrics import BevMetrics, iou_from_confusion, confusion, iou_from_tolerance, tolerance_counts
-from model.predict import decode
+from model.inference import decode
 
 NAMES = ["invalid", "vehicle", "lane_marking", "street", "background"]
 MARK = 2

@@ -156,7 +156,7 @@ def test_resumed_run_continues_exactly_after_a_kill(real_tiny, tmp_path):
 
 
 def render_dataset(out: Path, dataset_config: Path) -> Path:
-    """Real renders: issue 3's generator (Blender) then issue 4's label fusion."""
+    """Real renders: generator (Blender) then label fusion."""
     env = dict(os.environ, PYTHONPATH=str(ROOT))
     for cmd in (["-m", "dataset_tools", "generate", "--config", str(dataset_config), "--out", str(out)],
                 ["-m", "dataset_tools", "fuse", str(out)]):

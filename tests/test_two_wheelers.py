@@ -10,7 +10,7 @@ import pytest
 from blender_scripts import two_wheelers as tw
 from blender_scripts.layouts import Layout, Z_KERB
 from blender_scripts.materials import MATERIAL_CLASSES
-from blender_scripts.shapes import line_path
+from blender_scripts.meshes import line_path
 
 
 @pytest.mark.parametrize("make,cls,length", [(tw.bicycle_mesh, "bicycle", (1.6, 1.9)),

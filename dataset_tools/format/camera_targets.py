@@ -6,13 +6,13 @@
                           0 where the ray hits nothing (sky, outside the lens) or beyond 655.34 m
         semantic_<name>   uint8, fine semantic class (the EXR `semantic` pass; `ego` = the car's body)
 
-The model's loader (`model.camera_targets`) needs only these two passes of the EXR, at a few
+The model's loader (`model.feature_targets`) needs only these two passes of the EXR, at a few
 hundred pixels per camera (one per feature pixel). They are cut to 3 bytes a pixel (a fifth of the
 EXR) and left uncompressed, so `read_camera_targets` memory-maps the file and a sample reads only
 the pixels it samples (a compressed file would cost a whole decompression per sample).
-`camera_targets` reads the file, deriving and writing it on first use; the write is atomic (temp
-file + rename), so loader workers deriving the same frame at once each write a whole file and the
-last rename wins.
+The file is written by the fuse stage (`dataset_tools.fuse.fuse_dataset`, atomically), never by a
+reader: `camera_targets` reads it, and derives the targets in memory, writing nothing, for a data
+set fused before the file existed (slower: `python -m dataset_tools fuse DATA` writes them).
 """
 
 from __future__ import annotations
@@ -25,9 +25,8 @@ import numpy as np
 from common.files import write_bytes_atomic
 
 from .exr import read_exr
-from .layout import DatasetError, FrameFiles
+from .layout import CAMERA_TARGETS, DatasetError, FrameFiles
 
-CAMERA_TARGETS = "camera_targets.npy"
 DISTANCE_SCALE = 100.0  # stored units per metre (centimetres)
 NO_HIT = 0  # stored distance where the ray hits nothing (or beyond the uint16 range)
 _MAX_CM = np.iinfo(np.uint16).max - 1
@@ -115,10 +114,9 @@ def read_camera_targets(frame_dir, cameras) -> dict[str, tuple[np.ndarray, np.nd
 
 
 def camera_targets(frame_dir, cameras) -> dict[str, tuple[np.ndarray, np.ndarray]]:
-    """The frame's targets for `cameras`, derived from the EXRs and written on first use."""
+    """The frame's targets for `cameras`: the file's, else derived from the EXRs in memory (the data
+    set is not written)."""
     found = read_camera_targets(frame_dir, cameras)
     if found is not None:
         return found
-    table = derive_camera_targets(frame_dir, cameras)
-    write_camera_targets(frame_dir, table)
-    return _per_camera(table, cameras)
+    return _per_camera(derive_camera_targets(frame_dir, cameras), cameras)

@@ -1,23 +1,33 @@
 """The one place that names the files of a data set and of a frame, and reads and appends the
-manifest. Each other file has one writer and reader in this package: meta.json `format.meta`,
-label PNGs `format.labels`, index.json `format.index`, audit.json `format.audit`, EXR passes
-`format.passes` (through `format.exr`).
+manifest and the render's error log. Every file has one writer (and the readers go through this
+package, `format.*`, where a file has a format of its own):
 
     <dataset>/
-      manifest.jsonl            one JSON line per finished frame (written last, by the driver only)
-      index.json                splits -> frames, class names, grid, rig (dataset_tools.index / fuse)
-      recipes/<scene>.yaml      the recipe each scene was rendered from (sampled scenes)
-      audit.json                line-of-sight audit of the labels (dataset_tools.audit)
-      report/                   the static HTML QA report (dataset_tools.report)
-      <scene>/<frame:06d>/      one frame (frame_dir_name)
-        cam_<name>.exr/.png     fisheye passes and 8-bit image per camera
+      manifest.jsonl            one JSON line per finished frame, appended last, by the render driver
+                                only (Manifest; generation.driver.render)
+      index.json                splits -> frames, class names, grid, rig (format.index; the fuse stage,
+                                `python -m dataset_tools index`, format.merge_parts)
+      recipes/<scene>.yaml      the checked recipe each scene was rendered from (RECIPES_DIR;
+                                generation.driver.write_recipes, copied by format.merge_parts)
+      worker_errors.log         Python traces of scenes that failed to build (WorkerErrorLog;
+                                generation.driver.render)
+      audit.json                line-of-sight audit of the labels (format.audit_file; qa.audit)
+      report/                   the static HTML QA report (REPORT_DIR; qa.html_report)
+      <scene>/contact_sheet.png one picture of the scene's first frame (CONTACT_SHEET; qa.contact_sheet)
+      <scene>/<frame:06d>/      one frame (frame_dir_name), written by the Blender worker
+                                (blender_scripts.worker) but for labels/ and camera_targets.npy:
+        cam_<name>.exr/.png     fisheye passes (format.passes through format.exr) and 8-bit image per camera
         cam_<name>_ego.png      the camera's self-occlusion mask (255 where the ego car's body is)
         topdown.exr             top-down passes ('all.*' first hit from above, 'ground.*' occluders hidden)
-        meta.json               calibration, grid, weather, ego pose, actors
-        labels/semantic.png, instance.png, visibility.png   (dataset_tools.fuse)
+        meta.json               calibration, grid, weather, ego pose, actors (format.meta)
+        labels/semantic.png, instance.png, visibility.png   (format.labels; the fuse stage)
+        camera_targets.npy      per-camera distance and class, derived from the EXRs for training
+                                (format.camera_targets; the fuse stage, never the loader)
+      .lock                     held by the one writer at a time (common.lock)
 
-A manifest line counts only when it ends with a newline: a run killed mid-line leaves a torn last
-line, which every reader ignores and the next append cuts off (the frame is then redone).
+Every file is written atomically (temp file + rename) but the manifest, which is appended line
+by line: a manifest line counts only when it ends with a newline, so a run killed mid-line leaves a
+torn last line, which every reader ignores and the next append cuts off (the frame is then redone).
 """
 
 from __future__ import annotations
@@ -28,6 +38,7 @@ import threading
 from pathlib import Path
 
 from common.errors import InputError
+from common.files import write_text_atomic
 
 MANIFEST = "manifest.jsonl"
 INDEX = "index.json"
@@ -36,6 +47,9 @@ AUDIT = "audit.json"
 REPORT_DIR = "report"
 META = "meta.json"
 TOPDOWN_EXR = "topdown.exr"
+CONTACT_SHEET = "contact_sheet.png"
+CAMERA_TARGETS = "camera_targets.npy"
+WORKER_ERRORS = "worker_errors.log"
 LABEL_DIR = "labels"
 SEMANTIC_PNG = "semantic.png"
 INSTANCE_PNG = "instance.png"
@@ -83,6 +97,18 @@ class FrameFiles:
 
     def label_paths(self) -> list[Path]:
         return [self.labels / n for n in LABEL_PNGS]
+
+
+class WorkerErrorLog:
+    """`<dataset>/worker_errors.log`: the traces of scenes that failed to build, oldest first; each
+    append rewrites the file atomically (it is small: a trace per failed scene)."""
+
+    def __init__(self, root):
+        self.path = Path(root) / WORKER_ERRORS
+
+    def append(self, trace: str) -> None:
+        old = self.path.read_text() if self.path.is_file() else ""
+        write_text_atomic(self.path, old + trace + "\n")
 
 
 def _complete_lines(path: Path) -> list[bytes]:

@@ -17,14 +17,13 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 from common.backend import WorkerLost, make_backend
-from common.cli import EXIT_PROBLEMS
 from common.errors import ConfigError
 from common.files import clean_stale_temps, write_text_atomic
 from common.lifetime import DieWithParent
 from common.worker_protocol import RenderTask, read_message
 
-from ..format.layout import RECIPES_DIR, Manifest, frame_dir_name
-from .config import REPO
+from ..format.layout import RECIPES_DIR, Manifest, WorkerErrorLog, frame_dir_name
+from .dataset_config import REPO
 
 
 def plan(cfg: dict, shard: tuple[int, int]) -> list[tuple[dict, int]]:
@@ -135,7 +134,7 @@ def _drive(q: queue.Queue, new_worker, on_frame, errors: list, reschedule: bool,
     A lost worker's unfinished frames go back on the queue (when `reschedule`) and a new worker
     takes the slot; frames already reported are not redone. A scene that fails (the worker reports
     an error, or is lost MAX_LOSSES times) goes into `errors` and `failed`; its other tasks are
-    skipped and the slot goes on with the other scenes (issue 34: one scene that cannot be built
+    skipped and the slot goes on with the other scenes (one scene that cannot be built
     no longer stops the data set)."""
     failed = set() if failed is None else failed
     worker = new_worker()
@@ -175,11 +174,12 @@ def _drive(q: queue.Queue, new_worker, on_frame, errors: list, reschedule: bool,
         worker.close()
 
 
-def run(cfg: dict, out: Path, shard=(0, 1), workers: int | None = None, progress: bool = True,
-        backend: str = "local", address: str | None = None, threads: int = 1) -> int:
-    """Render this shard's missing frames into `out`. backend "local": `workers` Blender processes
-    on this machine (default one per core, the cores shared among them); "ray": one actor per
-    Blender process on the Ray cluster at `address`, `threads` cores each (common.backend)."""
+def render(cfg: dict, out: Path, shard=(0, 1), workers: int | None = None, progress: bool = True,
+           backend: str = "local", address: str | None = None, threads: int = 1) -> list[str]:
+    """The render stage: this shard's missing frames of `cfg` (load_config) into `out`; the problems,
+    one line each (none: every frame is rendered). backend "local": `workers` Blender processes on
+    this machine (default one per core, the cores shared among them); "ray": one actor per Blender
+    process on the Ray cluster at `address`, `threads` cores each (common.backend)."""
     from tqdm import tqdm
 
     out.mkdir(parents=True, exist_ok=True)
@@ -217,20 +217,17 @@ def run(cfg: dict, out: Path, shard=(0, 1), workers: int | None = None, progress
                     f.result()
     finally:
         bar.close()
-    if errors:
-        for e in errors:
-            if isinstance(e, WorkerFailed):
-                with open(out / "worker_errors.log", "a") as log:
-                    log.write(e.trace + "\n")
-                e = f"{e.message} (trace in {out / 'worker_errors.log'})"
-            print(f"generate: {e}", file=sys.stderr)
-        print(f"generate: {len(errors)} scene(s) failed, the others are rendered; fix them (or drop them) and run the same "
-              "command again to finish", file=sys.stderr)
-        return EXIT_PROBLEMS
-    from ..qa.contact_sheet import make_sheets
-
-    make_sheets(out)
-    return 0
+    if not errors:
+        return []
+    problems = []
+    for e in errors:
+        if isinstance(e, WorkerFailed):
+            log = WorkerErrorLog(out)
+            log.append(e.trace)
+            e = f"{e.message} (trace in {log.path})"
+        problems.append(f"generate: {e}")
+    return problems + [f"generate: {len(errors)} scene(s) failed, the others are rendered; fix them (or drop them) "
+                       "and run the same command again to finish"]
 
 
 def parse_shard(text: str) -> tuple[int, int]:

@@ -1,7 +1,7 @@
 """Scene recipes (scenes/*.yaml): schema, defaults and validation.
 
 A recipe is a mapping of sections; every key is optional except `family`. Unknown keys and bad
-values raise RecipeError with one line naming the file and the field. See README.md, "Recipes".
+values raise RecipeError with one line naming the file and the field. See docs/scenes.md, "Recipes".
 """
 
 from __future__ import annotations

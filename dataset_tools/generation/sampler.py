@@ -3,7 +3,7 @@
     recipes = sample_recipes({"count": 200, "seed": 1, "families": ["highway"], "weather": None})
 
 A dataset config asks for them with `- {sample: {count: 200, seed: 1, ...}, split: train}`
-(generation.config). A test block with `training_layouts: true` draws each scene's layout from the
+(generation.dataset_config). A test block with `training_layouts: true` draws each scene's layout from the
 config's training scenes instead, under new weather, traffic and ego drive (`relit_recipes`: the
 paper's "easy" split). Scene k of a block is drawn from its own stream `(STREAM, seed, k)`, so the
 same seed gives the same recipes, growing `count` keeps the first scenes, and blocks with different
@@ -143,7 +143,7 @@ def sample_recipes(spec: dict, source: str = "sample", families=None, weather=No
 
 def buildable(d: dict, source: str) -> dict:
     """The validated recipe, made one whose layout builds: overpasses are drawn only where one fits
-    (a short block of a wide street has no room between its junctions: issue 34, `min() arg is an
+    (a short block of a wide street has no room between its junctions: `min() arg is an
     empty sequence` in the layout builder). Draws nothing from the scene's stream, so the other
     recipes of a block stay as they were."""
     r = validate_recipe(d, source)

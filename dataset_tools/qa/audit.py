@@ -23,8 +23,8 @@ any of its cells has one (its label is per vehicle). Reported per frame and per 
                   (the pixel footprints of the cameras that see the cell, summed over the p(o)
                   kernel, >= --many * tau) that are labelled invisible (p(o) < 0.5)
 
-The result goes to <dataset>/audit.json (atomically); exit 1 when the overall --metric (default
-unexplained) is above --threshold (default 0.0005 of the visible cells).
+The result goes to <dataset>/audit.json (atomically); exit EXIT_PROBLEMS (1) when the overall
+--metric (default unexplained) is above --threshold (default 0.0005 of the visible cells).
 """
 
 from __future__ import annotations
@@ -34,17 +34,18 @@ from pathlib import Path
 
 import numpy as np
 
-from common.cli import ArgumentParser
+from common.cli import ArgumentParser, print_problems
 from common.errors import InputError
 from common.files import write_json_atomic
 
-from ..format.audit import write_audit
+from ..format.audit_file import write_audit
 from ..format.labels import read_labels
 from ..format.meta import read_meta
 from ..format.passes import read_frame_passes, read_topdown
 from ..format.reader import DatasetIndex
-from ..labels import visibility as V
-from ..labels.fusion import FusionConfig, effective_tau, ego_box, ego_mask
+from ..generation.dataset_config import load_labels
+from ..labels.label_fusion import FusionConfig, effective_tau, ego_box, ego_mask
+from ..labels.visibility import RayTable, count_points, kernel_sum, lift, ray_tables
 
 RINGS = (("0-10", 0.0, 10.0), ("10-20", 10.0, 20.0), ("20-25", 20.0, math.inf))
 THRESHOLD = 0.0005
@@ -78,7 +79,7 @@ def seen_height(grid, top: np.ndarray, origin, n_azimuth: int = N_AZIMUTH) -> np
     return (oz + (r_cell + grid.res / 2) * before).astype(np.float32)
 
 
-def pixel_solid_angle(table: V.RayTable) -> np.ndarray:
+def pixel_solid_angle(table: RayTable) -> np.ndarray:
     """(H, W) solid angle of each pixel (steradians) from the ray table's neighbouring rays."""
     r = table.rays.astype(np.float64)
     du = np.gradient(r, axis=1)
@@ -87,7 +88,7 @@ def pixel_solid_angle(table: V.RayTable) -> np.ndarray:
     return np.where(table.valid, om, np.nan)
 
 
-def expected_pixels(grid, rc, table: V.RayTable, top: np.ndarray, seen: np.ndarray) -> np.ndarray:
+def expected_pixels(grid, rc, table: RayTable, top: np.ndarray, seen: np.ndarray) -> np.ndarray:
     """(rows, cols) camera pixels expected on each cell's (horizontal) surface where `seen`:
     cell area * cos(incidence) / distance^2 over the solid angle of the pixel it projects to."""
     c = grid.cell_centres()
@@ -110,8 +111,8 @@ def expected_pixels(grid, rc, table: V.RayTable, top: np.ndarray, seen: np.ndarr
 _OMEGA: dict[int, np.ndarray] = {}
 
 
-def pixel_solid_angle_cached(table: V.RayTable) -> np.ndarray:
-    key = id(table)  # ray tables are cached per calibration (visibility.camera_table)
+def pixel_solid_angle_cached(table: RayTable) -> np.ndarray:
+    key = id(table)  # ray tables are cached per calibration (labels.visibility.camera_table)
     if key not in _OMEGA:
         _OMEGA[key] = pixel_solid_angle(table)
     return _OMEGA[key]
@@ -128,10 +129,10 @@ def pixel_points(rig, cameras: dict, grid, cfg: FusionConfig) -> np.ndarray:
     point (no spreading)."""
     lut = cfg.group_lut()
     total = np.zeros(grid.shape, np.float32)
-    for name, table in V.ray_tables(rig).items():
+    for name, table in ray_tables(rig).items():
         p = cameras[name]
-        xy, _, _, _ = V.lift(table, p["distance"], lut[np.clip(p["semantic"], 0, len(lut) - 1)])
-        total += V.count_points(grid, xy)
+        xy, _, _, _ = lift(table, p["distance"], lut[np.clip(p["semantic"], 0, len(lut) - 1)])
+        total += count_points(grid, xy)
     return total
 
 
@@ -147,7 +148,7 @@ def audit_labels(grid, rig, topdown: dict, visibility: np.ndarray, box, cfg: Fus
     ground = np.isin(topdown["semantic"], cfg.fine_ids(cfg.ground_classes))
     los = np.zeros(grid.shape, bool)
     px = np.zeros(grid.shape, np.float32)
-    tables = V.ray_tables(rig)
+    tables = ray_tables(rig)
     for rc in rig:
         sees = seen_height(grid, blockers, tables[rc.name].origin) <= top + Z_EPS
         los |= sees
@@ -158,15 +159,15 @@ def audit_labels(grid, rig, topdown: dict, visibility: np.ndarray, box, cfg: Fus
     los |= vehicle & np.isin(inst, seen_ids)
     los &= ~ego
     tau = effective_tau(cfg, [t.shape for t in tables.values()])
-    many_px = V.kernel_sum(px, cfg.kernel_radius_m / grid.res) >= many * tau
+    many_px = kernel_sum(px, cfg.kernel_radius_m / grid.res) >= many * tau
     # p(o) is about the ground and vehicles; the kernel's spill onto a wall's or a pole's cell is not
     visible = (visibility >= VISIBLE) & ~ego & (ground | vehicle)
     hidden = visible & ~los
-    near_los = V.kernel_sum(los.astype(np.float32), cfg.kernel_radius_m / grid.res + math.sqrt(0.5)) > 0
+    near_los = kernel_sum(los.astype(np.float32), cfg.kernel_radius_m / grid.res + math.sqrt(0.5)) > 0
     expect = los & many_px & ground & ~ego
     missed = expect & (visibility < VISIBLE)
     radius = cfg.kernel_radius_m / grid.res
-    near_px = np.ones(grid.shape, bool) if pixels is None else V.kernel_sum(pixels, radius) > 0
+    near_px = np.ones(grid.shape, bool) if pixels is None else kernel_sum(pixels, radius) > 0
     unexplained = hidden & ~near_los & ~near_px
 
     def shares(m):
@@ -269,13 +270,22 @@ def main(argv=None) -> int:
     ap.add_argument("--json", help="also write the report here")
     ap.add_argument("--no-progress", action="store_true")
     args = ap.parse_args(argv)
-    cfg = FusionConfig.load(args.config) if args.config else FusionConfig()
-    r = audit_dataset(args.dataset, cfg, args.threshold, args.many, args.metric, not args.no_pixels,
-                      progress=not args.no_progress)
-    path = write_audit(args.dataset, r)
-    if args.json:
-        write_json_atomic(Path(args.json), r)
+    cfg = load_labels(args.config) if args.config else FusionConfig()
+    return print_problems(run_audit(args.dataset, cfg, args.threshold, args.many, args.metric, not args.no_pixels,
+                                    progress=not args.no_progress, json_path=args.json))
+
+
+def run_audit(root, cfg: FusionConfig, threshold: float = THRESHOLD, many: float = 2.0, metric: str = "unexplained",
+              pixels: bool = True, progress: bool = True, json_path=None) -> list[str]:
+    """The audit stage: audit_dataset, written to <root>/audit.json (and `json_path`), its table
+    printed; the problems: one line when the overall `metric` is above `threshold`."""
+    r = audit_dataset(root, cfg, threshold, many, metric, pixels, progress=progress)
+    path = write_audit(root, r)
+    if json_path:
+        write_json_atomic(Path(json_path), r)
     print(format_report(r))
-    print(f"{'ok' if r['passed'] else 'FAIL'}: {args.metric} {r['overall'][args.metric]:.4%} of the visible cells "
-          f"(threshold {args.threshold:.4%}); written {path}")
-    return 0 if r["passed"] else 1
+    line = (f"{metric} {r['overall'][metric]:.4%} of the visible cells (threshold {threshold:.4%}); written {path}")
+    if r["passed"]:
+        print(f"ok: {line}")
+        return []
+    return [f"audit: FAIL: {line}"]

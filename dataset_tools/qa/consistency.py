@@ -24,8 +24,8 @@ from common.files import write_json_atomic
 from ..format.labels import read_labels
 from ..format.passes import read_frame_passes
 from ..format.reader import DatasetIndex
-from ..labels import visibility as V
-from ..labels.fusion import FusionConfig
+from ..labels.label_fusion import FusionConfig
+from ..labels.visibility import lift, ray_tables
 
 
 def near_class(semantic: np.ndarray, n: int, cells: int) -> np.ndarray:
@@ -45,10 +45,10 @@ def camera_vs_labels(rig, cameras: dict, semantic: np.ndarray, visibility: np.nd
     lut, group_lut = cfg.lut(), cfg.group_lut()
     conf = np.zeros((n, n), np.int64)
     near = near_class(semantic, n, tolerance_cells) if tolerance_cells > 0 else None
-    for name, table in V.ray_tables(rig).items():
+    for name, table in ray_tables(rig).items():
         p = cameras[name]
         sem = np.clip(p["semantic"], 0, len(lut) - 1)
-        xy, pix, _, _ = V.lift(table, p["distance"], group_lut[sem])
+        xy, pix, _, _ = lift(table, p["distance"], group_lut[sem])
         row, col, inside = grid.cell_of(xy)
         cam = lut[sem.reshape(-1)[pix[inside]]].astype(np.int64)
         row, col = row[inside], col[inside]

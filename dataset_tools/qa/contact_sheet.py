@@ -4,21 +4,21 @@
     python -m dataset_tools contact_sheet <out dir> [--frame N]
 
 writes <out>/<scene>/contact_sheet.png for every scene with that frame rendered (default: the
-scene's first finished frame).
+scene's first finished frame). `make_sheets` is the `contact_sheets` stage of dataset_tools.pipeline
+(after the render, before the fusion); this command runs it alone.
 """
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import cv2
 import numpy as np
 
-from common.cli import ArgumentParser
+from common.cli import ArgumentParser, print_problems
 
 from ..format.exr import read_exr_checked
-from ..format.layout import DatasetError, FrameFiles, frame_dir_name
+from ..format.layout import CONTACT_SHEET, DatasetError, FrameFiles, frame_dir_name
 from ..format.png import read_png, write_png_atomic
 from ..labels.classes import colorize
 
@@ -61,7 +61,7 @@ def make_sheets(out_dir: Path, frame: int | None = None) -> list[Path]:
             frames = [d for d in frames if d.name == frame_dir_name("", frame)[1:]]
         if not frames:
             continue
-        path = scene_dir / "contact_sheet.png"
+        path = scene_dir / CONTACT_SHEET
         write_png_atomic(path, frame_sheet(frames[0]))
         made.append(path)
     return made
@@ -79,8 +79,5 @@ def main(argv=None) -> int:
     made = make_sheets(a.out, a.frame)
     for p in made:
         print(p)
-    if not made:
-        print(f"contact_sheet: {a.out}: no finished frames", file=sys.stderr)
-        return 1
-    return 0
+    return print_problems([] if made else [f"contact_sheet: {a.out}: no finished frames"])
 

@@ -19,7 +19,7 @@ from ..format.labels import read_labels
 from ..format.meta import read_meta
 from ..format.passes import read_frame_passes
 from ..format.reader import DatasetIndex
-from ..labels.fusion import FusionConfig, camera_counts, effective_tau
+from ..labels.label_fusion import FusionConfig, camera_counts, effective_tau
 from ..labels.visibility import ray_tables, visibility_from_counts
 
 RANGE_EDGES = (0, 5, 10, 15, 20, 25, 36)

@@ -18,7 +18,7 @@ import numpy as np
 
 from common.cli import ArgumentParser
 
-from ..format.audit import audit_metric, read_audit
+from ..format.audit_file import audit_metric, read_audit
 from ..format.exr import read_exr_checked
 from ..format.index import read_index
 from ..format.labels import label_problems

@@ -3,7 +3,7 @@ the file system (no server, no CDN; HTML, CSS and a little plain JavaScript).
 
     python -m dataset_tools report DATA [--out DATA/report] [--frames-per-scene N]
 
-Every picture is drawn by dataset_tools.qa.inspect (cameras and BEV), contact_sheet, stats and
+Every picture is drawn by dataset_tools.qa.inspect_frame (cameras and BEV), contact_sheet, stats and
 consistency; this module only shrinks them into thumbnails and writes the pages. Per frame the
 outputs lie in <out>/frames/<scene>/<frame>/ and are rebuilt only when an input of the frame is
 newer than the frame's info.json (written last). The per-cell data behind the hover read-out is a
@@ -24,17 +24,17 @@ import numpy as np
 
 from common.files import clean_stale_temps, write_bytes_atomic, write_figure_atomic, write_json_atomic, write_text_atomic
 
-from ..format.audit import audit_metric, read_audit
+from ..format.audit_file import audit_metric, read_audit
 from ..format.labels import read_labels
 from ..format.layout import REPORT_DIR, DatasetError, FrameFiles, frame_dir_name
 from ..format.meta import FrameMeta
 from ..format.png import read_png
 from ..format.reader import DatasetIndex, downsample_labels
 from ..labels.classes import TRAIN_PALETTE
-from ..labels.fusion import DEFAULT_EGO_BOX, FusionConfig
-from . import consistency as C
-from . import inspect as I
-from . import stats as S
+from ..labels.label_fusion import DEFAULT_EGO_BOX, FusionConfig
+from . import consistency
+from . import inspect_frame
+from . import stats
 from .contact_sheet import frame_sheet
 
 CAMERA_W = 320  # camera thumbnails at most this wide
@@ -170,11 +170,11 @@ def build_frame(ref, out: Path, cfg: FusionConfig, class_names: list[str]) -> di
     """Writes the frame's thumbnails, cells.js and (last) info.json; returns the info."""
     out.mkdir(parents=True, exist_ok=True)
     files = FrameFiles(ref.dir)
-    pics, d = I.frame_pictures(ref.dir, cfg, read_labels(ref.dir))
+    pics, d = inspect_frame.frame_pictures(ref.dir, cfg, read_labels(ref.dir))
     images: dict[str, dict[str, str]] = {}
     for name in d["names"]:
         rgb = read_png(files.camera_png(name), np.uint8, 3)
-        per = {"rgb": rgb, **I.pass_pictures(d["cameras"][name])}
+        per = {"rgb": rgb, **inspect_frame.pass_pictures(d["cameras"][name])}
         ego = files.camera_ego_mask(name)
         if ego.is_file():
             per["ego"] = ego_overlay(rgb, read_png(ego))
@@ -184,12 +184,12 @@ def build_frame(ref, out: Path, cfg: FusionConfig, class_names: list[str]) -> di
            for k, _ in BEV_VIEWS}
     cells = cell_table(d["labels"], d["topdown"], d["seen"], d["names"], d["grid"], len(class_names))
     write_text_atomic(out / "cells.js", f"REPORT.cells[{json.dumps(ref.name)}] = {json.dumps(cells, separators=(',', ':'))};\n")
-    conf = C.camera_vs_labels(d["rig"], d["cameras"], d["labels"]["semantic"], d["labels"]["visibility"], d["grid"], cfg)
+    conf = consistency.camera_vs_labels(d["rig"], d["cameras"], d["labels"]["semantic"], d["labels"]["visibility"], d["grid"], cfg)
     vis = d["labels"]["visibility"]
     info = {
         "version": VERSION, "name": ref.name, "scene": ref.scene, "frame": ref.frame, "split": ref.split,
         "cameras": d["names"], "images": images, "bev": bev, "meta": meta_summary(d["meta"]),
-        "consistency": C.scores(conf, cfg.class_names),
+        "consistency": consistency.scores(conf, cfg.class_names),
         "visibility_mean": float(vis.mean()), "visible_share": float(np.mean(vis >= 0.5)),
         "grid": {"rows": d["grid"].rows, "cols": d["grid"].cols, "res": d["grid"].res},
     }
@@ -239,7 +239,7 @@ def rig_figure(rig, path: Path, box=DEFAULT_EGO_BOX, reach_m: float = 3.0) -> No
         rays = np.asarray(rays)[np.asarray(valid)]
         xy = rays[:, :2] / np.maximum(np.linalg.norm(rays[:, :2], axis=1, keepdims=True), 1e-9)
         fan = np.concatenate([origin[None, :2], origin[None, :2] + reach_m * xy, origin[None, :2]])
-        colour = I.CAMERA_COLOURS[i % len(I.CAMERA_COLOURS)] / 255
+        colour = inspect_frame.CAMERA_COLOURS[i % len(inspect_frame.CAMERA_COLOURS)] / 255
         ax.fill(-fan[:, 1], fan[:, 0], color=colour, alpha=0.25, lw=1, ec=colour)
         az = np.degrees(np.arctan2(rays[:, 1], rays[:, 0]))
         span = float(np.degrees(np.arccos(np.clip(xy[0] @ xy[-1], -1, 1)))) if len(xy) > 1 else 0.0
@@ -400,7 +400,7 @@ def _timings(scenes: dict) -> dict:
 
 def scene_page(scene: str, infos: list[dict], class_names: list[str], audit: dict | None, has_sheet: bool) -> str:
     data = {"scene": scene, "class_names": class_names, "class_colours": TRAIN_PALETTE[: len(class_names)].tolist(),
-            "camera_colours": I.CAMERA_COLOURS.astype(int).tolist(), "passes": list(PASSES), "bev": [list(v) for v in BEV_VIEWS],
+            "camera_colours": inspect_frame.CAMERA_COLOURS.astype(int).tolist(), "passes": list(PASSES), "bev": [list(v) for v in BEV_VIEWS],
             "audit": {k: {f: (round(x, 5) if isinstance(x, float) else x) for f, x in v.items() if not isinstance(x, (dict, list))}
                       for k, v in (audit or {}).get("frames", {}).items() if k.split("/")[0] == scene},
             "frames": infos}
@@ -459,10 +459,10 @@ def build_report(root, out=None, frames_per_scene: int | None = None, threshold:
     # the statistics read every label: cached, redone when a frame or the index changed
     stamp = out / "overview" / "stats.json"
     if rebuilt or force or not up_to_date(stamp, [root / "index.json"]):
-        st = S.dataset_stats(root, cameras=False, progress=progress)
+        st = stats.dataset_stats(root, cameras=False, progress=progress)
         write_json_atomic(stamp, st)
     st = json.loads(stamp.read_text())
-    st["_plots"] = [p.name for p in S.plot(st, out / "overview")]
+    st["_plots"] = [p.name for p in stats.plot(st, out / "overview")]
     rig_figure(idx.rig, out / "overview" / "rig.png")
     timing_figure([i for infos in scenes.values() for i in infos], out / "overview" / "render_time.png")
     first_ref = {r.name: r for r in refs}
@@ -506,7 +506,7 @@ def report_size(out: Path) -> int:
 
 
 def main(argv=None) -> int:
-    from common.cli import ArgumentParser
+    from common.cli import ArgumentParser, print_problems
 
     ap = ArgumentParser(prog="python -m dataset_tools report", description=__doc__.splitlines()[0])
     ap.add_argument("dataset", type=Path)
@@ -516,7 +516,14 @@ def main(argv=None) -> int:
     ap.add_argument("--force", action="store_true", help="rebuild every output")
     ap.add_argument("--no-progress", action="store_true")
     a = ap.parse_args(argv)
+    return print_problems(run_report(a.dataset, a.out, a.frames_per_scene, a.threshold, not a.no_progress, a.force))
+
+
+def run_report(root, out=None, frames_per_scene: int | None = None, threshold: float = 0.97, progress: bool = True,
+               force: bool = False) -> list[str]:
+    """The report stage: build_report and one line saying where it is; the problems (none: the
+    report shows what it finds, it does not judge)."""
     t0 = time.perf_counter()
-    index = build_report(a.dataset, a.out, a.frames_per_scene, a.threshold, not a.no_progress, a.force)
+    index = build_report(root, out, frames_per_scene, threshold, progress, force)
     print(f"report: {index} ({report_size(index.parent) / 1e6:.1f} MB, {time.perf_counter() - t0:.1f} s)")
-    return 0
+    return []

@@ -24,7 +24,7 @@ from ..format.layout import DatasetError
 from ..format.passes import read_frame_passes
 from ..format.png import write_png_atomic
 from ..labels.classes import colorize, colorize_train
-from ..labels.fusion import FusionConfig, effective_tau, ego_box, fuse_passes
+from ..labels.label_fusion import FusionConfig, effective_tau, ego_box, fuse_passes
 from ..labels.visibility import visibility_from_counts
 CAMERA_COLOURS = np.array([[230, 25, 75], [60, 180, 75], [0, 130, 200], [255, 225, 25], [245, 130, 48],
                            [145, 30, 180], [70, 240, 240], [240, 50, 230]], np.float32)

@@ -16,14 +16,14 @@ from dataclasses import asdict, dataclass, field, make_dataclass
 import numpy as np
 
 from common.errors import ConfigError
-from common.files import read_yaml
 from common.schema import List, Mapping, Name, Num, Section, Str
 
 from ..format.layout import DatasetError, FrameFiles
 from ..format.meta import FrameMeta
 from ..format.passes import read_frame_passes
-from . import visibility as V
 from .classes import CLASS_IDS, DEFAULT_CLASS_MAP, NUM_FINE_CLASSES, TRAIN_CLASSES, class_lut
+from .visibility import (RayTable, SurfaceRule, count_points, footprint_mask, hits, lift_points, ray_tables, seen_instances,
+                         spread_counts, visibility_from_counts)
 
 GROUND_CLASSES = ("road", "lane_marking", "crosswalk", "stop_line", "sidewalk", "curb", "parking", "terrain")
 VEHICLE_CLASSES = ("vehicle",)
@@ -42,9 +42,9 @@ FUSION_SCHEMA = Section({
     # size (null: use tau as given)
     "reference_pixels": Num(above=0, integer=True, default=480 * 302, nullable=True),
     # spread each pixel's weight along the surface to its neighbours in sub-points this far apart
-    # (0: count each pixel at its own point only); see visibility.spread_counts
+    # (0: count each pixel at its own point only); see spread_counts
     "spread_step_m": Num(0.0, 10.0, default=0.25),
-    # when two neighbouring pixels are on one seen surface (visibility.SurfaceRule)
+    # when two neighbouring pixels are on one seen surface (SurfaceRule)
     "spread_z_tol_m": Num(0.0, 1.0, default=0.05),
     "spread_max_grade": Num(0.0, 1.0, default=0.02),
     "spread_min_grazing_deg": Num(above=0, hi=90.0, default=15.0),
@@ -68,7 +68,8 @@ _FusionFields = make_dataclass("_FusionFields", [
 @dataclass
 class FusionConfig(_FusionFields):
     """Label fusion settings: a field per FUSION_SCHEMA entry (the `labels:` section of a dataset
-    config), with its default. `from_dict`/`load` validate; the constructor takes values as given."""
+    config), with its default. `from_dict` validates (a dataset config's file is read by
+    generation.dataset_config: `load_config(p)["labels"]`, `load_labels(p)`); the constructor takes values as given."""
 
     def __post_init__(self):
         self.ground_classes, self.vehicle_classes = tuple(self.ground_classes), tuple(self.vehicle_classes)
@@ -85,11 +86,6 @@ class FusionConfig(_FusionFields):
             raise ConfigError(f"{source}: class_map: {exc}") from None
         return cls(**cfg)
 
-    @classmethod
-    def load(cls, path) -> "FusionConfig":
-        d = read_yaml(path) or {}
-        return cls.from_dict(d.get("labels", {}) if isinstance(d, dict) else {}, f"{path}: labels")
-
     def to_dict(self) -> dict:
         return asdict(self)
 
@@ -99,8 +95,8 @@ class FusionConfig(_FusionFields):
     def fine_ids(self, names) -> np.ndarray:
         return np.array([CLASS_IDS[n] for n in names], np.int64)
 
-    def surface_rule(self) -> V.SurfaceRule:
-        return V.SurfaceRule(self.spread_z_tol_m, self.spread_max_grade, self.spread_min_grazing_deg)
+    def surface_rule(self) -> SurfaceRule:
+        return SurfaceRule(self.spread_z_tol_m, self.spread_max_grade, self.spread_min_grazing_deg)
 
     def group_lut(self) -> np.ndarray:
         """Fine class id -> 1 ground, 2 vehicle, 0 other (int8)."""
@@ -151,20 +147,20 @@ def effective_min_pixels(cfg: FusionConfig, shapes) -> int:
 PAINT_CLASSES = ("lane_marking", "crosswalk", "stop_line")
 
 
-def camera_counts(table: V.RayTable, passes: dict, grid, cfg: FusionConfig, min_pixels: int | None = None):
+def camera_counts(table: RayTable, passes: dict, grid, cfg: FusionConfig, min_pixels: int | None = None):
     """(rows, cols) pixel-occurrence counts of one camera's ground and vehicle hits, and the
     vehicle instances it sees with at least min_pixels (default: cfg.min_vehicle_pixels) pixels."""
     lut = cfg.group_lut()
     sem = np.clip(passes["semantic"], 0, len(lut) - 1)
-    group = V.hits(table, passes["distance"], lut[sem])
+    group = hits(table, passes["distance"], lut[sem])
     k = cfg.min_vehicle_pixels if min_pixels is None else min_pixels
-    seen = V.seen_instances(passes["instance"], group == 2, k)
-    points = V.lift_points(table, passes["distance"])
+    seen = seen_instances(passes["instance"], group == 2, k)
+    points = lift_points(table, passes["distance"])
     if cfg.spread_step_m:
         paint = np.isin(sem, cfg.fine_ids([c for c in PAINT_CLASSES if c in cfg.ground_classes]))
-        return V.spread_counts(grid, points, passes["distance"], group, passes["instance"], table.rays,
+        return spread_counts(grid, points, passes["distance"], group, passes["instance"], table.rays,
                                cfg.spread_step_m, paint, cfg.surface_rule()), seen
-    return V.count_points(grid, points[..., :2][group > 0]), seen
+    return count_points(grid, points[..., :2][group > 0]), seen
 
 
 def fuse_passes(rig, cameras: dict, topdown: dict, grid, cfg: FusionConfig, box=DEFAULT_EGO_BOX) -> dict:
@@ -176,7 +172,7 @@ def fuse_passes(rig, cameras: dict, topdown: dict, grid, cfg: FusionConfig, box=
     """
     if topdown["semantic"].shape != grid.shape:
         raise ValueError(f"top-down pass is {topdown['semantic'].shape}, the label grid is {grid.shape}")
-    tables = V.ray_tables(rig)
+    tables = ray_tables(rig)
     vehicle_ids = cfg.fine_ids(cfg.vehicle_classes)
     lut = cfg.lut()
     fine = np.clip(topdown["semantic"], 0, len(lut) - 1)
@@ -190,10 +186,10 @@ def fuse_passes(rig, cameras: dict, topdown: dict, grid, cfg: FusionConfig, box=
         counts[name], ids = camera_counts(table, cameras[name], grid, cfg, k)
         seen.append(ids)
     total = sum(counts.values())
-    vis = V.visibility_from_counts(total, grid.res, cfg.kernel_radius_m, effective_tau(cfg, shapes))
+    vis = visibility_from_counts(total, grid.res, cfg.kernel_radius_m, effective_tau(cfg, shapes))
     is_vehicle = np.isin(fine, vehicle_ids)
     seen_ids = np.unique(np.concatenate(seen)) if seen else np.zeros(0, np.int64)
-    vis[V.footprint_mask(topdown["instance"], seen_ids) & is_vehicle] = 1.0
+    vis[footprint_mask(topdown["instance"], seen_ids) & is_vehicle] = 1.0
     ego = ego_mask(grid, box)
     semantic[ego] = 0
     vis[ego] = 0.0

@@ -14,8 +14,10 @@ paper's "easy" split): its scenes share their layout seed with training on purpo
 traffic seed.
 
 Relative paths (rig, recipes) are looked up as given (from the working directory), then beside
-the config, then in the repository. The `labels:` section belongs to the label fusion
-(dataset_tools.labels.fusion.FusionConfig) and is checked there.
+the config, then in the repository. The `labels:` section is the label fusion's settings: it is
+checked at load by dataset_tools.labels.label_fusion.FusionConfig (`cfg["labels"]` is one), so a mistake
+there stops a data set before anything renders; `load_labels` reads only that section (what `fuse
+--config` and `audit --config` take).
 """
 
 from __future__ import annotations
@@ -27,6 +29,7 @@ from common.files import read_yaml
 from common.schema import Any, Bool, List, Name, Num, Section, Str, deep_merge
 
 from ..format.layout import LABEL_DIR, RECIPES_DIR, REPORT_DIR, SPLITS
+from ..labels.label_fusion import FusionConfig
 from .recipe import FAMILIES, WEATHER_PRESETS, load_recipe
 from .sampler import SAMPLE, relit_recipes, sample_recipes
 from .sensor import EFFECTS, OFF as SENSOR_OFF, SENSOR
@@ -104,16 +107,33 @@ def resolve(path, base: Path) -> Path:
     return base / p if (base / p).exists() else REPO / p
 
 
-def load_config(path, option: str = "--config") -> dict:
-    """The dataset config with every scene's recipe loaded and checked (`option`: what named the
-    file, for the message when it is missing)."""
+def _existing_file(path, option: str) -> Path:
     path = Path(path)
     if path.is_dir():
         raise ConfigError(f"{option}: {path}: is a folder, not a file")
     if not path.exists():
         raise ConfigError(f"{option}: {path}: missing")
+    return path
+
+
+def _labels(d, path: Path) -> FusionConfig:
+    """The `labels:` section of a dataset config's YAML, checked by FusionConfig (defaults when absent)."""
+    return FusionConfig.from_dict(d.get("labels") if isinstance(d, dict) else None, f"{path}: labels")
+
+
+def load_labels(path, option: str = "--config") -> FusionConfig:
+    """Only the `labels:` section of a dataset config (a file with only that section will do)."""
+    path = _existing_file(path, option)
+    return _labels(read_yaml(path), path)
+
+
+def load_config(path, option: str = "--config") -> dict:
+    """The dataset config with every scene's recipe loaded and checked, `labels` a FusionConfig
+    (`option`: what named the file, for the message when it is missing)."""
+    path = _existing_file(path, option)
     d = with_quality(read_yaml(path), str(path))
     cfg = SCHEMA.validate(d, str(path))
+    cfg["labels"] = _labels(cfg, path)
     cfg["name"] = cfg["name"] or SCHEMA.fields["name"].validate(path.stem, f"{path}: name")
     cfg["rig"] = str(resolve(cfg["rig"], path.parent))
     if not Path(cfg["rig"]).is_file():
