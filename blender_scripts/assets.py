@@ -78,8 +78,8 @@ def tree_meshes(rng: np.random.Generator, overhang: bool, shape: str | None = No
     # generator advances exactly as it did before trees had them
     detail = np.random.default_rng([int(1e6 * trunk_h), int(1e6 * r), int(1e6 * trunk_r)])
     _lumpy(canopy, detail, r)
-    if shape != "conifer":
-        _branches(trunk, detail, trunk_h, top, trunk_r, r, lean)
+    if shape != "conifer":  # limbs belong to the crown: overhead, hidden with it from the label pass
+        _branches(canopy, detail, trunk_h, top, trunk_r, r, lean)
     trunk.smooth_angle = canopy.smooth_angle = 60.0
     return trunk, canopy
 
@@ -99,14 +99,16 @@ def _lumpy(canopy: MeshData, rng: np.random.Generator, r: float) -> None:
         canopy.verts[k] = c + d * f[:, None]
 
 
-def _branches(trunk: MeshData, rng: np.random.Generator, trunk_h, top, trunk_r, r, lean) -> None:
-    """A few limbs from the upper trunk up and out into the crown."""
+def _branches(canopy: MeshData, rng: np.random.Generator, trunk_h, top, trunk_r, r, lean) -> None:
+    """A few limbs from the upper trunk up and out into the crown, part of the crown's mesh (material
+    `branch`, class canopy: an overhead occluder like the leaves; as `bark` on the trunk they stayed
+    in the top-down ground pass as thin walls metres high that no camera is blocked by)."""
     for k in range(int(rng.integers(3, 6))):
         a = 2 * np.pi * k / 5 + rng.uniform(-0.4, 0.4)
         z0 = trunk_h * rng.uniform(0.7, 0.95)
         reach = r * rng.uniform(0.4, 0.7)
         end = (reach * np.cos(a), lean * 0.5 + reach * np.sin(a), min(top, z0 + reach * 0.9))
-        trunk.tube((0.0, 0.0, z0), end, trunk_r * 0.35, trunk_r * 0.15, n=6, mat="bark")
+        canopy.tube((0.0, 0.0, z0), end, trunk_r * 0.35, trunk_r * 0.15, n=6, mat="branch")
 
 
 def building_mesh(rng: np.random.Generator, length, depth, height) -> MeshData:

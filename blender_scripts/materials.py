@@ -23,6 +23,7 @@ MATERIAL_CLASSES = {
     "grass": "terrain",
     "bark": "vegetation",
     "leaves": "canopy",
+    "branch": "canopy",
     "wall": "building",
     "window": "building",
     "metal": "pole",
@@ -493,6 +494,7 @@ def build_materials(weather: dict) -> dict[str, bpy.types.Material]:
     m, b = make("grass", (0.08, 0.2, 0.04), rough=0.95)
     _grass(m, b)
     make("bark", (0.12, 0.08, 0.05), rough=0.9)
+    make("branch", (0.12, 0.08, 0.05), rough=0.9)  # bark on the limbs in the crown (class canopy)
     m, b = make("leaves", (0.05, 0.18, 0.03), rough=0.8)
     _noise_mix(m, b, (0.03, 0.12, 0.02), (0.1, 0.25, 0.05), 2.0)
     _bump(m, b, _noise(m.node_tree, 6.0, detail=3.0).outputs["Fac"], 0.8, distance=0.3)

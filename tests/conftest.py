@@ -14,6 +14,7 @@ os.chdir(ROOT)
 def _run(*args):
     r = subprocess.run([sys.executable, "-m", *args], cwd=ROOT, capture_output=True, text=True, timeout=900)
     assert r.returncode == 0, f"{' '.join(args)} failed:\n{r.stderr[-3000:]}"
+    return r
 
 
 @pytest.fixture(scope="session")
@@ -21,7 +22,8 @@ def tiny_rendered(tmp_path_factory):
     """The `tiny` preset rendered by real Blender once per test session, with its contact sheets:
     the pipeline's first two stages (read-only: copy to change)."""
     out = tmp_path_factory.mktemp("tiny_rendered") / "ds"
-    _run("dataset_tools", "generate", "--config", "configs/dataset/tiny.yaml", "--out", str(out), "--no-progress")
+    r = _run("dataset_tools", "generate", "--config", "configs/dataset/tiny.yaml", "--out", str(out), "--no-progress")
+    (out.parent / "generate.stdout").write_text(r.stdout)  # what a user saw (tests/test_scenes.py)
     _run("dataset_tools", "contact_sheet", str(out))
     return out
 

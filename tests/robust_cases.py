@@ -34,15 +34,21 @@ class Case:
 CASES: list[Case] = []
 
 
+def _register(c: "Case") -> None:
+    if any(x.id == c.id for x in CASES):  # a second case of the same id would shadow the first
+        raise ValueError(f"robust_cases: case id '{c.id}' is used twice")
+    CASES.append(c)
+
+
 def case(id, command, code=2, needles=()):
     def deco(fn):
-        CASES.append(Case(id, command, fn, code, tuple(needles)))
+        _register(Case(id, command, fn, code, tuple(needles)))
         return fn
     return deco
 
 
 def add(id, command, build, code=2, needles=()):
-    CASES.append(Case(id, command, build, code, tuple(needles)))
+    _register(Case(id, command, build, code, tuple(needles)))
 
 
 # ------------------------------------------------------------------ generate: dataset configs
@@ -581,12 +587,6 @@ def _(ctx):
     ds = ctx.ds()
     (_first_frame(ds) / "cam_front.exr").unlink()
     return [str(ds), str(ctx.out)]
-
-
-@case("export-woodscape-out-is-a-file", "export-woodscape", needles=("OUT", "is a file"))
-def _(ctx):
-    ctx.out_is_a_file()
-    return [str(ctx.ds()), str(ctx.out)]
 
 
 # ------------------------------------------------------------------ calibrations, images, rigs, exports, comparisons

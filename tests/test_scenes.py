@@ -234,6 +234,14 @@ def test_people_stand_on_the_pavements_of_urban_scenes(scene_tiny_run):
             assert h.max() > Z_KERB + 1.0 and h.max() < Z_KERB + 2.0, key
 
 
+def test_generate_says_once_what_each_camera_of_the_rig_is(tiny_rendered):
+    out = (tiny_rendered.parent / "generate.stdout").read_text().splitlines()
+    lines = [ln for ln in out if ln.startswith("rig ")]
+    for cam in ("front", "left", "rear", "right"):
+        assert sum(f": {cam}: " in ln for ln in lines) == 1, (cam, lines)
+    assert all("exact" in ln or "fit" in ln for ln in lines)
+
+
 def test_two_wheelers_on_the_pavements_of_urban_scenes(scene_tiny_run):
     from blender_scripts.layouts import Z_KERB
 

@@ -105,3 +105,18 @@ def test_a_lots_lamp_posts_stand_clear_of_every_bay_and_light_its_rows():
     bulbs = np.array([b[:2] for b in lay.lamps])
     far = [p for p in lay.parked if np.linalg.norm(bulbs - p[:2], axis=1).min() > 15]
     assert not far
+
+
+def test_a_trees_limbs_are_part_of_its_crown_hidden_with_it_from_the_label_pass():
+    """What stands in the top-down ground pass must block a camera as a 2.5D height would: a trunk
+    does, limbs in the crown do not (the audit's line-of-sight sweep took them for walls)."""
+    from blender_scripts.assets import TREE_SHAPES, tree_meshes
+    from dataset_tools.labels.classes import CLASS_IDS, OVERHEAD_OCCLUDERS
+
+    for k, shape in enumerate(TREE_SHAPES):
+        trunk, canopy = tree_meshes(np.random.default_rng(k), overhang=k % 2 == 0 and shape in ("round", "clustered"),
+                                    shape=shape)
+        assert set(trunk.mats) == {"bark"}
+        assert all(CLASS_IDS[MATERIAL_CLASSES[n]] in OVERHEAD_OCCLUDERS for n in canopy.mats)
+        if shape != "conifer":
+            assert "branch" in canopy.mats
