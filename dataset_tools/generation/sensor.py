@@ -62,12 +62,18 @@ def draw(switches: dict, rng: np.random.Generator) -> dict:
     return out
 
 
-def motion_flow(camera, cam_to_ego: np.ndarray, position: np.ndarray, instance: np.ndarray, motion: dict) -> np.ndarray:
+def motion_flow(camera, cam_to_ego: np.ndarray, position: np.ndarray, instance: np.ndarray, motion: dict,
+                step: int = 2) -> np.ndarray:
     """(H, W, 2) image velocity (pixels per second) of every pixel's scene point, from its positions
     at the start and end of `motion["dt"]` seconds centred on the frame: `position` (H, W, 3) world points, `instance`
     (H, W) their object ids; `motion["world_to_ego"]` the ego's world-to-ego matrices at both ends,
     `motion["instances"]` {id: [start, end]} world motions of moving objects (from their pose at the
-    frame). Background (instance 0: sky) and points the camera model cannot project get 0."""
+    frame). Background (instance 0: sky) and points the camera model cannot project get 0. Computed
+    on every `step`-th pixel in each direction and spread to its neighbours (a blur's path need not
+    be exact to the pixel; a quarter of the projections)."""
+    if step > 1:
+        coarse = motion_flow(camera, cam_to_ego, position[::step, ::step], instance[::step, ::step], motion, 1)
+        return np.repeat(np.repeat(coarse, step, 0), step, 1)[: instance.shape[0], : instance.shape[1]]
     h, w = instance.shape
     pts = np.concatenate([position.reshape(-1, 3).astype(np.float64), np.ones((h * w, 1))], 1)
     inst = instance.reshape(-1)
