@@ -1,5 +1,5 @@
 """The one place that knows the order of the data set stages: render (or merge parts rendered
-apart), fuse, audit, report.
+apart), fuse, audit, report; then the dataset card (README.md).
 
     python -m dataset_tools dataset --config configs/dataset/small.yaml --out data/small [--workers N]
                                     [--backend ray [--address A] [--threads T]]
@@ -96,6 +96,9 @@ def build_dataset(config, out, backend: str = "local", workers: int | None = Non
             result = code
         elif code:  # the stage said why; run again to resume
             return code
+    from .card import write_dataset_card
+
+    print(f"dataset: card {write_dataset_card(out, config)}", flush=True)  # README.md, the dataset card (issue 35)
     return result
 
 

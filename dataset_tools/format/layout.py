@@ -9,6 +9,7 @@ label PNGs `format.labels`, index.json `format.index`, audit.json `format.audit`
       recipes/<scene>.yaml      the recipe each scene was rendered from (sampled scenes)
       audit.json                line-of-sight audit of the labels (dataset_tools.audit)
       report/                   the static HTML QA report (dataset_tools.report)
+      README.md                 the dataset card (format.card, dataset_tools.card)
       <scene>/<frame:06d>/      one frame (frame_dir_name)
         cam_<name>.exr/.png     fisheye passes and 8-bit image per camera
         cam_<name>_ego.png      the camera's self-occlusion mask (255 where the ego car's body is)
@@ -34,6 +35,7 @@ INDEX = "index.json"
 RECIPES_DIR = "recipes"
 AUDIT = "audit.json"
 REPORT_DIR = "report"
+CARD = "README.md"
 META = "meta.json"
 TOPDOWN_EXR = "topdown.exr"
 LABEL_DIR = "labels"

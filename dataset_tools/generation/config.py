@@ -26,7 +26,7 @@ from common.errors import ConfigError
 from common.files import read_yaml
 from common.schema import Any, Bool, List, Name, Num, Section, Str, deep_merge
 
-from ..format.layout import LABEL_DIR, RECIPES_DIR, REPORT_DIR, SPLITS
+from ..format.layout import CARD, LABEL_DIR, RECIPES_DIR, REPORT_DIR, SPLITS
 from .recipe import FAMILIES, WEATHER_PRESETS, load_recipe
 from .sampler import SAMPLE, relit_recipes, sample_recipes
 from .sensor import EFFECTS, OFF as SENSOR_OFF, SENSOR
@@ -151,8 +151,8 @@ def load_config(path, option: str = "--config") -> dict:
             if cfg["frames"] is not None:
                 recipe["frames"]["count"] = cfg["frames"]
             name = recipe["name"]
-            if name in (RECIPES_DIR, REPORT_DIR, LABEL_DIR):
-                raise ConfigError(f"{where}.name: '{name}' is a reserved folder name of the data set")
+            if name in (RECIPES_DIR, REPORT_DIR, LABEL_DIR, CARD):
+                raise ConfigError(f"{where}.name: '{name}' is a reserved name of the data set (a folder or file of it)")
             if name in names:
                 raise ConfigError(f"{where}.name: scene name '{name}' used twice")
             names.add(name)
