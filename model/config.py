@@ -33,6 +33,11 @@ class GridField(Field):
 SCHEMA = Section({
     "data": Section({
         "root": Str(default="data/small"),
+        # WebDataset shards to train from instead of the folder (export-webdataset; model.shards):
+        # a brace pattern of local paths or file:/pipe: URLs; "" for none
+        "shards": Str(empty=True, default=""),
+        "shards_index": Str(empty=True, default=""),  # shards.json; "": beside the shards
+        "shuffle_buffer": Num(1, 10**6, integer=True, default=64),  # samples
         "train_split": Str(default="train"),
         "val_split": Str(empty=True, default="easy"),  # "" for none
         "input_size": List(Num(8, 4096, integer=True), length=2, default=[192, 120]),  # (W, H) fed to the encoder

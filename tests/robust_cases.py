@@ -776,6 +776,11 @@ def _(ctx):
     return [str(ds), str(ctx.out)]
 
 
+add("train-shards-missing", "train", train(data={"shards": "nowhere/train-{000000..000003}.tar"}), needles=("shards.json", "missing"))
+add("train-shards-index-not-json", "train", lambda ctx: train(data={"shards": str(ctx.ws / "x/train-000000.tar"),
+                                                                    "shards_index": str(ctx.write("x/shards.json", "{"))})(ctx),
+    needles=("shards.json", "JSON"))
+
 
 @case("export-woodscape-out-not-an-export", "export-woodscape", needles=("OUT", "export.json"))
 def _(ctx):
