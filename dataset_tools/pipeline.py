@@ -20,6 +20,7 @@ from pathlib import Path
 
 from common.backend import add_backend_args
 from common.cli import EXIT_PROBLEMS, ArgumentParser, run_cli
+from common.resources import dataset_config
 
 STAGES = ("render", "fuse", "audit", "report")
 
@@ -105,7 +106,7 @@ def build_dataset(config, out, backend: str = "local", workers: int | None = Non
 def main(argv=None) -> int:
     ap = ArgumentParser(prog="python -m dataset_tools dataset",
                         description="Build a data set: render, fuse, audit, report (each resumable).")
-    ap.add_argument("--config", required=True, type=Path, help="configs/dataset/<preset>.yaml")
+    ap.add_argument("--config", required=True, type=dataset_config, help="configs/dataset/<preset>.yaml, or a preset's name (tiny, demo, ...)")
     ap.add_argument("--out", required=True, type=Path)
     ap.add_argument("--workers", type=int, default=None,
                     help="Blender processes and fusion processes (default: one Blender per core, one fusion process)")

@@ -1,7 +1,7 @@
 """Training configs (configs/train/*.yaml): schema, defaults and validation.
 
 A config file overrides any subset of the defaults; `_base` names another config file (relative to
-this one) to start from. A wrong field raises ConfigError naming the file and the field.
+this one, or a shipped preset's name such as `cpu_default`) to start from. A wrong field raises ConfigError naming the file and the field.
 """
 
 from __future__ import annotations
@@ -10,6 +10,7 @@ from pathlib import Path
 
 from common.errors import ConfigError
 from common.files import parse_yaml, read_yaml
+from common.resources import preset
 from common.schema import Bool, Field, List, Num, OneOf, Section, Str, deep_merge, is_number
 
 from .pooling import POOLINGS
@@ -152,7 +153,8 @@ def read_config_file(path, _seen=()) -> dict:
         raise ConfigError(f"{path}: must be a mapping of sections")
     base = data.pop("_base", None)
     if base is not None:
-        bpath = (path.parent / str(base)).resolve()
+        bpath = path.parent / str(base)
+        bpath = (bpath if bpath.exists() else preset(base, "train")).resolve()  # `_base: cpu_default` names a preset
         if bpath in _seen:
             raise ConfigError(f"{path}: _base: circular reference to {bpath}")
         data = deep_merge(read_config_file(bpath, _seen + (bpath,)), data)

@@ -14,8 +14,10 @@ paper's "easy" split): its scenes share their layout seed with training on purpo
 traffic seed.
 
 Relative paths (rig, recipes) are looked up as given (from the working directory), then beside
-the config, then in the repository. The `labels:` section belongs to the label fusion
-(dataset_tools.labels.fusion.FusionConfig) and is checked there.
+the config, then among the toolkit's shipped files (common.resources: the checkout, or the
+installed package's data); `--config tiny` names a preset (configs/dataset/tiny.yaml). The
+`labels:` section belongs to the label fusion (dataset_tools.labels.fusion.FusionConfig) and is
+checked there.
 """
 
 from __future__ import annotations
@@ -24,6 +26,7 @@ from pathlib import Path
 
 from common.errors import ConfigError
 from common.files import read_yaml
+from common.resources import resolve_input
 from common.schema import Any, Bool, List, Name, Num, Section, Str, deep_merge
 
 from ..format.layout import CARD, LABEL_DIR, RECIPES_DIR, REPORT_DIR, SPLITS
@@ -31,7 +34,6 @@ from .recipe import FAMILIES, WEATHER_PRESETS, load_recipe
 from .sampler import SAMPLE, relit_recipes, sample_recipes
 from .sensor import EFFECTS, OFF as SENSOR_OFF, SENSOR
 
-REPO = Path(__file__).resolve().parents[2]
 DENOISE_QUALITIES = ("high", "balanced", "fast")  # OpenImageDenoise's, as Cycles names them
 
 # render quality presets: the defaults of the render section. draft: fast and clean (tests, the
@@ -97,11 +99,9 @@ def with_quality(d, where: str):
 
 
 def resolve(path, base: Path) -> Path:
-    """A path as given (absolute or from the working directory), else beside the config, else in the repo."""
-    p = Path(path)
-    if p.is_absolute() or p.exists():
-        return p
-    return base / p if (base / p).exists() else REPO / p
+    """A path as given (absolute or from the working directory), else beside the config, else the
+    toolkit's shipped file (common.resources)."""
+    return resolve_input(path, base)
 
 
 def load_config(path, option: str = "--config") -> dict:
