@@ -34,11 +34,12 @@ import numpy as np
 from common.cli import ArgumentParser, run_cli
 from common.errors import InputError
 from common.files import output_dir, read_json, write_json_atomic, write_text_atomic
+from common.resources import CODE_DIR
 from common.schema import deep_merge
 from model.bootstrap import paired_runs_bootstrap, per_scene_arrays, runs_bootstrap
 from model.run_dir import RunDir
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = CODE_DIR  # the checkout (common.resources)
 SCALES = {"cpu": "configs/train/cpu_default.yaml", "gpu": "configs/train/paper.yaml"}
 BASE = {"model": {"pooling": "intrinsics_embedding", "trunk": "efficientnet_lite0"},
         "loss": {"class_weights": "uniform", "occlusion_weight": 1.0}}
