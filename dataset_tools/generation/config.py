@@ -26,7 +26,7 @@ from pathlib import Path
 
 from common.errors import ConfigError
 from common.files import read_yaml
-from common.resources import resolve_input
+from common.resources import presets, resolve_input
 from common.schema import Any, Bool, List, Name, Num, Section, Str, deep_merge
 
 from ..format.layout import CARD, LABEL_DIR, RECIPES_DIR, REPORT_DIR, SPLITS
@@ -111,7 +111,7 @@ def load_config(path, option: str = "--config") -> dict:
     if path.is_dir():
         raise ConfigError(f"{option}: {path}: is a folder, not a file")
     if not path.exists():
-        raise ConfigError(f"{option}: {path}: missing")
+        raise ConfigError(f"{option}: {path}: missing" + ("" if path.suffix else f" (or a preset's name: {', '.join(presets('dataset'))})"))
     d = with_quality(read_yaml(path), str(path))
     cfg = SCHEMA.validate(d, str(path))
     cfg["name"] = cfg["name"] or SCHEMA.fields["name"].validate(path.stem, f"{path}: name")
