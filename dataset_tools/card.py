@@ -230,7 +230,7 @@ def write_export_card(index: DatasetIndex, out, shards: dict, license: str | Non
              f"{shards['shard_size']} frames: " + ", ".join(f"`{p}`" for p in patterns.values()) + "; `shards.json` lists them with their\n"
              "frame counts and holds the data set's index (class names, grid, rig). A sample is one frame, its key\n"
              "`<scene>/<frame:06d>`, its members: " + ", ".join(f"`{f}`" for f in shards["sample_files"]) + ".\n\n"
-             "```python\nimport webdataset as wds\nds = wds.WebDataset(\"train-{000000..000009}.tar\")  # bytes per member\n```\n\n"
+             "```python\nimport webdataset as wds\nds = wds.WebDataset(\"" + patterns.get("train", next(iter(patterns.values()))) + "\")  # bytes per member\n```\n\n"
              "Training streams them with `data.shards` in a fisheye-bev training config (docs/publishing.md).")
     data_files = {s: f"{s}-*.tar" for s in patterns}
     return write_card(out, _front(index, name, lic, gen, data_files, _counts_bytes(shards)), _body(index, name, lic, gen, files))

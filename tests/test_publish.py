@@ -84,6 +84,7 @@ def test_card_front_matter_names_every_split(tiny_dataset, tiny_shards):
     assert front["license"] and front["task_categories"] == ["image-segmentation"] and front["size_categories"] == ["n<1K"]
     assert {d["split"]: d["path"] for d in front["configs"][0]["data_files"]} == {s: f"{s}-*.tar" for s in counts}
     assert front["fisheye_bev"]["cameras"] == idx.rig.names and front["fisheye_bev"]["class_names"] == idx.class_names
+    assert 'wds.WebDataset("train-{000000..000003}.tar")' in body
     for name in idx.class_names:
         assert f"| {name} |" in body
     for rc in idx.rig:
