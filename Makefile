@@ -14,7 +14,7 @@ BROWSER_PKGS := chromium chromium-driver
 
 setup: $(VENV)/.done
 
-$(VENV)/.done: requirements.txt pyproject.toml Makefile
+$(VENV)/.done: requirements.txt pyproject.toml setup.py Makefile
 	@missing=""; for p in $(APT_LIBS); do dpkg -s $$p >/dev/null 2>&1 || missing="$$missing $$p"; done; \
 	if [ -n "$$missing" ]; then \
 	  echo "installing shared libraries for bpy:$$missing"; \

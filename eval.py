@@ -21,6 +21,7 @@ from __future__ import annotations
 import torch
 
 from common.cli import ArgumentParser, run_cli
+from common.resources import preset
 from dataset_tools import SPLITS
 from model.config import load_config
 from model.evaluation import EvalError, compare_checkpoints, evaluate_checkpoint
@@ -59,7 +60,7 @@ def main(argv=None) -> int:
         print(table)
         print(f"written {out}/{out.comparison.name} and {out.comparison_table.name}")
         return 0
-    expect = load_config(a.config) if a.config else None
+    expect = load_config(preset(a.config, "train")) if a.config else None
     table, out = evaluate_checkpoint(a.checkpoint, a.split, a.out, a.data, expect, a.pictures, a.save_predictions, precision[0])
     print(table)
     print(f"written {out}/{out.metrics.name}, {out.table.name}, {EvalDir.CONFUSION_GLOB} and {EvalDir.FRAME_GLOB}")

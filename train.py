@@ -18,6 +18,7 @@ from pathlib import Path
 from common.cli import ArgumentParser, EXIT_INTERRUPTED, run_cli
 from common.files import output_dir
 from common.lock import hold_lock
+from common.resources import preset
 from model.config import load_config, parse_overrides
 from model.run_dir import RunDir
 from model.training import train
@@ -28,12 +29,13 @@ DEFAULT_CONFIG = "configs/train/cpu_medium.yaml"  # the Makefile's CONFIG (tests
 
 def main(argv=None) -> int:
     p = ArgumentParser(prog="train.py", description="Train the LSS-fisheye BEV model.")
-    p.add_argument("--config", default=DEFAULT_CONFIG, help=f"training config (default {DEFAULT_CONFIG})")
+    p.add_argument("--config", default=DEFAULT_CONFIG,
+                   help=f"a training config, or a preset's name (demo, cpu_default, ...); default {DEFAULT_CONFIG}")
     p.add_argument("--out", help="run directory (default runs/<config name>)")
     p.add_argument("--set", action="append", default=[], metavar="SECTION.FIELD=VALUE", help="override a config field")
     p.add_argument("--quiet", action="store_true")
     a = p.parse_args(argv)
-    cfg = load_config(a.config, parse_overrides(a.set))
+    cfg = load_config(preset(a.config, "train"), parse_overrides(a.set))
     out = Path(a.out or Path("runs") / Path(a.config).stem)
     output_dir(out)
     # one training run per run folder (rank 0 holds the lock for its DDP peers)

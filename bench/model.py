@@ -31,7 +31,9 @@ from pathlib import Path
 
 import torch
 
-ROOT = Path(__file__).resolve().parents[1]
+from common.resources import CODE_DIR
+
+ROOT = CODE_DIR  # the checkout (common.resources)
 GOALS = {
     "splat_speedup_vs_cumsum": ">= 5",
     "train_samples_per_s": ">= 4",

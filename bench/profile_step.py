@@ -19,7 +19,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
-ROOT = Path(__file__).resolve().parents[1]
+from common.resources import CODE_DIR
+
+ROOT = CODE_DIR  # the checkout (common.resources)
 
 
 def _ms(ts):

@@ -27,12 +27,13 @@ import numpy as np
 import yaml
 
 from common.files import write_text_atomic
+from common.resources import CODE_DIR
 from dataset_tools.format.exr import read_exr
 from dataset_tools.format.layout import FrameFiles
 from dataset_tools.format.png import read_png, write_png_atomic
 from dataset_tools.labels.classes import CLASS_IDS
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = CODE_DIR  # the checkout (common.resources)
 BASELINE = "4017132"  # the last commit with box vehicles and flat materials
 SCENES = {"count": 16, "seed": 4242, "frames": 2, "rate_hz": 0.5, "rig_jitter": 1.0, "prefix": "realism"}
 MIN_SIDE = 40

@@ -27,9 +27,9 @@ from pathlib import Path
 
 from .errors import InputError, MachineError
 from .lifetime import DieWithParent
+from .resources import CODE_DIR
 
 BACKENDS = ("local", "ray")
-REPO = Path(__file__).resolve().parents[1]  # on the Ray workers' PYTHONPATH
 
 
 RAY_NODE_TIMEOUT_S = 60.0  # default wait for a live Ray node with a CPU (docs/scaling.md)
@@ -127,7 +127,7 @@ class RayBackend:
     def __init__(self, address: str | None = None, workers: int | None = None):
         from .raycluster import connect
 
-        self.ray = connect(address, code_dir=REPO)
+        self.ray = connect(address, code_dir=CODE_DIR)  # on the Ray workers' PYTHONPATH
         self.workers = workers
         self._actor_classes: dict = {}
 

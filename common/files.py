@@ -78,6 +78,36 @@ def output_dir(path, flag: str = "--out") -> Path:
     return path
 
 
+def build_folder(out, fill, marker: str, flag: str = "OUT"):
+    """Build the folder `out` atomically: `fill(tmp)` writes everything into a hidden temp folder
+    beside it (`.<out>.<pid>.tmp`), which then replaces `out` (an earlier build there goes as a
+    whole); a failure leaves `out` as it was. `out` must be missing, empty or an earlier build (it
+    holds the file `marker`): other files are never removed (InputError). Returns fill's result."""
+    import shutil
+
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise InputError(f"{flag}: {out} is a file, not a folder")
+    if out.is_dir() and any(out.iterdir()) and not (out / marker).is_file():
+        raise InputError(f"{flag}: {out} holds files but no earlier export ({marker}); give a new or empty folder")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.parent / f".{out.name}.{os.getpid()}.tmp"
+    shutil.rmtree(tmp, ignore_errors=True)
+    try:
+        tmp.mkdir()
+        result = fill(tmp)
+        old = out.parent / f".{out.name}.{os.getpid()}.old"
+        shutil.rmtree(old, ignore_errors=True)
+        if out.exists():
+            os.replace(out, old)
+        os.replace(tmp, out)
+        shutil.rmtree(old, ignore_errors=True)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return result
+
+
 def clean_stale_temps(folder, recursive: bool = True) -> int:
     """Remove temp files (`.<name>.<pid>.tmp[.ext]`) a killed run left behind; returns how many."""
     folder = Path(folder)

@@ -28,6 +28,7 @@ COMMANDS = {
     "consistency": ("dataset_tools.qa.consistency", "fisheye semantic pixels vs fused labels, per class"),
     "stats": ("dataset_tools.qa.stats", "class frequencies, visibility, coverage"),
     "export-woodscape": ("dataset_tools.export_woodscape", "export a data set in the WoodScape layout (images, calibration, semantic maps, polygons, 2D boxes)"),
+    "export-webdataset": ("dataset_tools.export_webdataset", "export a data set as WebDataset tar shards per split, with shards.json and a dataset card"),
     "stitch": ("dataset_tools.stitch", "bird's-eye stitch of a rig's images (real or rendered) on the ground plane"),
 }
 ALIASES = {"contact-sheet": "contact_sheet"}

@@ -21,15 +21,13 @@ from __future__ import annotations
 
 import json
 import math
-import os
-import shutil
 from pathlib import Path
 
 import numpy as np
 
 from common.cli import ArgumentParser, run_cli
 from common.errors import InputError
-from common.files import output_dir, write_bytes_atomic, write_json_atomic
+from common.files import build_folder, output_dir, write_bytes_atomic, write_json_atomic
 from geometry.cameras import camera_from_dict
 from geometry.rig import matrix_to_quat
 
@@ -178,23 +176,7 @@ def export(data, out) -> dict:
     stale frames and calibrations included, goes as a whole); a failure leaves `out` as it was.
     `out` must be missing, empty or an earlier export (its export.json): other files are never removed."""
     index = DatasetIndex(data)
-    out = Path(out)
-    if out.is_dir() and any(out.iterdir()) and not (out / "export.json").is_file():
-        raise ExportError(f"OUT: {out} holds files but no earlier export (export.json); give a new or empty folder")
-    tmp = out.parent / f".{out.name}.{os.getpid()}.tmp"
-    shutil.rmtree(tmp, ignore_errors=True)
-    try:
-        summary = _export_into(index, data, tmp)
-        old = out.parent / f".{out.name}.{os.getpid()}.old"
-        shutil.rmtree(old, ignore_errors=True)
-        if out.exists():
-            os.replace(out, old)
-        os.replace(tmp, out)
-        shutil.rmtree(old, ignore_errors=True)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
-    return summary
+    return build_folder(out, lambda tmp: _export_into(index, data, tmp), "export.json")
 
 
 def _export_into(index, data, out: Path) -> dict:

@@ -21,6 +21,7 @@ from common.backend import add_backend_args, make_backend
 from common.cli import ArgumentParser, print_problems, require_positive, run_cli
 from common.files import clean_stale_temps
 from common.lock import hold_lock
+from common.resources import dataset_config
 
 from .format.camera_targets import derive_camera_targets, targets_path, write_camera_targets
 from .format.index import build_index, write_index
@@ -116,7 +117,7 @@ def main(argv=None) -> int:
     ap.add_argument("dataset")
     ap.add_argument("--workers", type=int, default=None,
                     help="processes (default 1); with --backend ray: at most this many batches at once (default: no cap)")
-    ap.add_argument("--config", help="dataset config YAML whose 'labels:' section sets the fusion")
+    ap.add_argument("--config", type=dataset_config, help="dataset config YAML whose 'labels:' section sets the fusion")
     ap.add_argument("--force", action="store_true", help="redo frames that already have labels")
     add_backend_args(ap)
     ap.add_argument("--no-progress", action="store_true")

@@ -16,6 +16,7 @@ from common.cli import ArgumentParser, print_problems, require_positive, run_cli
 from common.errors import ConfigError
 from common.files import output_dir
 from common.lock import hold_lock
+from common.resources import dataset_config
 
 from .generation.dataset_config import load_config
 from .generation.driver import parse_shard, render
@@ -23,7 +24,7 @@ from .generation.driver import parse_shard, render
 
 def main(argv=None) -> int:
     ap = ArgumentParser(prog="python -m dataset_tools generate", description="Render procedural road scenes through the fisheye rig.")
-    ap.add_argument("--config", required=True, type=Path, help="configs/dataset/<preset>.yaml")
+    ap.add_argument("--config", required=True, type=dataset_config, help="configs/dataset/<preset>.yaml, or a preset's name")
     ap.add_argument("--out", required=True, type=Path)
     ap.add_argument("--shard", default="0/1", help="i/N: render every N-th job starting at i")
     ap.add_argument("--workers", type=int, default=None,

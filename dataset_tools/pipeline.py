@@ -1,5 +1,5 @@
 """The one place that knows the order of the data set stages: render (or merge parts rendered
-apart), contact sheets, fuse, audit, report.
+apart), contact sheets, fuse, audit, report; then the dataset card (README.md).
 
     python -m dataset_tools dataset --config configs/dataset/small.yaml --out data/small [--workers N]
                                     [--backend ray [--address A] [--threads T]]
@@ -27,7 +27,9 @@ from common.backend import add_backend_args
 from common.cli import EXIT_PROBLEMS, ArgumentParser, print_problems, require_positive, run_cli
 from common.files import output_dir
 from common.lock import hold_lock
+from common.resources import dataset_config
 
+from .card import write_dataset_card
 from .format.merge_parts import merge
 from .fuse import fuse_dataset
 from .generation.dataset_config import load_config
@@ -55,11 +57,13 @@ def contact_sheets(out: Path) -> list[str]:
 
 
 def build_dataset(cfg: dict | None, out, backend: str = "local", workers: int | None = None,
-                  address: str | None = None, threads: int | None = None, parts=None, progress: bool = True) -> int:
+                  address: str | None = None, threads: int | None = None, parts=None, progress: bool = True,
+                  config_path=None) -> int:
     """Render `cfg` (load_config) into `out` (or merge `parts` into it), then draw the contact sheets,
-    fuse, audit and report; the exit code. `cfg` may be None with `parts` (no check that every
-    frame is there; default fusion). Holds `out`'s lock for the whole run (with `parts`, from after
-    the merge, which checks the parts first and writes nothing when they do not fit)."""
+    fuse, audit and report, and write the dataset card (naming `config_path`, the config's file);
+    the exit code. `cfg` may be None with `parts` (no check that every frame is there; default
+    fusion). Holds `out`'s lock for the whole run (with `parts`, from after the merge, which checks
+    the parts first and writes nothing when they do not fit)."""
     out = Path(out) if parts else output_dir(out)
     labels = cfg["labels"] if cfg else FusionConfig()
     stages = {
@@ -81,13 +85,14 @@ def build_dataset(cfg: dict | None, out, backend: str = "local", workers: int | 
                 if stage in FATAL:  # the stage said why; run again to resume
                     return EXIT_PROBLEMS
                 result = EXIT_PROBLEMS
+        print(f"dataset: card {write_dataset_card(out, config_path)}", flush=True)  # README.md, the dataset card
     return result
 
 
 def main(argv=None) -> int:
     ap = ArgumentParser(prog="python -m dataset_tools dataset",
-                        description="Build a data set: render, contact sheets, fuse, audit, report (each resumable).")
-    ap.add_argument("--config", required=True, type=Path, help="configs/dataset/<preset>.yaml")
+                        description="Build a data set: render, contact sheets, fuse, audit, report, card (each resumable).")
+    ap.add_argument("--config", required=True, type=dataset_config, help="configs/dataset/<preset>.yaml, or a preset's name (tiny, demo, ...)")
     ap.add_argument("--out", required=True, type=Path)
     ap.add_argument("--workers", type=int, default=None,
                     help="Blender processes and fusion processes (default: one Blender per core, one fusion process)")
@@ -98,7 +103,7 @@ def main(argv=None) -> int:
     require_positive("--workers", a.workers)
     require_positive("--threads", a.threads)
     return build_dataset(load_config(a.config), a.out, a.backend, a.workers, a.address, a.threads,
-                         progress=not a.no_progress)
+                         progress=not a.no_progress, config_path=a.config)
 
 
 

@@ -8,11 +8,12 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from common.resources import CODE_DIR
 from common.schema import deep_merge
 from model.config import read_config_file
 from model.eval_report import TABLE_COLUMNS
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = CODE_DIR  # the checkout (common.resources)
 RECIPE = read_config_file(ROOT / "configs/train/recipe.yaml")  # the training recipe, written once there
 SCALES = {"cpu": "configs/train/cpu_default.yaml", "gpu": "configs/train/paper.yaml"}
 BASE = {"model": {"pooling": "intrinsics_embedding", "trunk": "efficientnet_lite0"},

@@ -1,8 +1,9 @@
 """Training configs (configs/train/*.yaml): schema, defaults and validation.
 
 A config file overrides any subset of the defaults; `_base` names another config file (relative to
-this one) to start from, or a list of them, merged in order (a shared part such as recipe.yaml
-written once). A wrong field raises ConfigError naming the file and the field.
+this one, or a shipped preset's name such as `cpu_default`) to start from, or a list of them,
+merged in order (a shared part such as recipe.yaml written once). A wrong field raises ConfigError
+naming the file and the field.
 """
 
 from __future__ import annotations
@@ -11,6 +12,7 @@ from pathlib import Path
 
 from common.errors import ConfigError
 from common.files import parse_yaml, read_yaml
+from common.resources import preset
 from common.schema import Bool, Field, List, Num, OneOf, Section, Str, deep_merge, is_number
 
 from .pooling import POOLINGS
@@ -34,6 +36,11 @@ class GridField(Field):
 SCHEMA = Section({
     "data": Section({
         "root": Str(default="data/small"),
+        # WebDataset shards to train from instead of the folder (export-webdataset; model.shards):
+        # a brace pattern of local paths or file:/pipe: URLs; "" for none
+        "shards": Str(empty=True, default=""),
+        "shards_index": Str(empty=True, default=""),  # shards.json; "": beside the shards
+        "shuffle_buffer": Num(1, 10**6, integer=True, default=64),  # samples
         "train_split": Str(default="train"),
         "val_split": Str(empty=True, default="easy"),  # "" for none
         "input_size": List(Num(8, 4096, integer=True), length=2, default=[192, 120]),  # (W, H) fed to the encoder
@@ -153,7 +160,8 @@ def read_config_file(path, _seen=()) -> dict:
     for b in base if isinstance(base, list) else [base]:
         if not isinstance(b, str):
             raise ConfigError(f"{path}: _base: must be a file name or a list of file names, got {b!r}")
-        bpath = (path.parent / b).resolve()
+        bpath = path.parent / b
+        bpath = (bpath if bpath.exists() else preset(b, "train")).resolve()  # `_base: cpu_default` names a preset
         if bpath in _seen:
             raise ConfigError(f"{path}: _base: circular reference to {bpath}")
         merged = deep_merge(merged, read_config_file(bpath, _seen + (bpath,)))

@@ -41,9 +41,14 @@ def label_factor(label_grid: BevGrid, model_grid: BevGrid, source: str = "data s
 
 
 class BevDataset(Dataset):
-    def __init__(self, index: DatasetIndex | str, split: str, cfg: dict, train: bool = False):
+    """The samples of a split. `frames`: {position in the split: a frame as read_frame gives it (plus
+    `camera_targets`)} held in memory (a split read from shards, model.shards), else each frame is
+    read from the data set folder. `make_sample` turns a read frame into a sample, for a stream too."""
+
+    def __init__(self, index: DatasetIndex | str, split: str, cfg: dict, train: bool = False, frames: dict | None = None):
         self.index = index if isinstance(index, DatasetIndex) else DatasetIndex(index)
         self.refs = self.index.frames(split)
+        self.frames = frames
         view = model_view(self.index.rig, cfg)
         self.rectifier = view.rectifier  # None: the model sees the fisheye images
         self.rig = view.rig
@@ -77,9 +82,10 @@ class BevDataset(Dataset):
         view = model_view(fisheye, self.cfg)  # cached by calibration
         return view.frustum, view.rectifier
 
-    def targets_of(self, ref, frustum, transforms, rectify) -> tuple[torch.Tensor, torch.Tensor]:
-        """(depth bin (N, h, w), training class (N, h, w)) of what each feature pixel's ray hits."""
-        passes = read_camera_passes(ref.dir, self.names)
+    def targets_of(self, ref, frustum, transforms, rectify, passes=None) -> tuple[torch.Tensor, torch.Tensor]:
+        """(depth bin (N, h, w), training class (N, h, w)) of what each feature pixel's ray hits
+        (`passes`: the frame's camera targets when already read, from a shard)."""
+        passes = read_camera_passes(ref.dir, self.names) if passes is None else passes
         for n, (dist, _) in passes.items():
             src = self.index.rig[n].camera
             if dist.shape != (src.height, src.width):
@@ -95,7 +101,11 @@ class BevDataset(Dataset):
 
     def __getitem__(self, i: int) -> dict:
         ref = self.refs[i]
-        f = read_frame(ref, cameras=self.names, num_classes=len(self.class_names))
+        f = self.frames[i] if self.frames is not None else read_frame(ref, cameras=self.names, num_classes=len(self.class_names))
+        return self.make_sample(ref, f, i)
+
+    def make_sample(self, ref, f: dict, i: int) -> dict:
+        """The sample of frame `f` (read_frame's dict), the `i`-th of the split (which seeds its augmentation)."""
         rng = np.random.default_rng([self.seed, self.epoch, i])  # independent streams: no collisions
         seed = int(rng.integers(2**63))  # the colour jitter's torch seed
         sample = {}
@@ -122,7 +132,7 @@ class BevDataset(Dataset):
                 torch.manual_seed(seed)
                 images = self.jitter(images)
         if self.camera_targets:
-            sample["depth_target"], sample["camera_semantic"] = self.targets_of(ref, frustum, transforms, rectify)
+            sample["depth_target"], sample["camera_semantic"] = self.targets_of(ref, frustum, transforms, rectify, f.get("camera_targets"))
         sem, vis = f["semantic"], f["visibility"]
         if self.factor > 1:
             sem, vis = downsample_labels(sem, vis, self.factor, priority=self.priority, num_classes=len(self.class_names))

@@ -38,6 +38,7 @@ from .evaluation import validation_scores
 from .losses import class_weights, total_loss
 from .inference import decode, forward, to_device
 from .run_dir import RunDir
+from .shards import ShardStream, shard_datasets
 
 
 class EpochBatches:
@@ -83,7 +84,7 @@ class Run:
     world: int
     device: torch.device
     index: DatasetIndex
-    train_ds: BevDataset
+    train_ds: BevDataset | ShardStream
     val_ds: BevDataset | None
     model: torch.nn.Module
     opt: torch.optim.Optimizer
@@ -145,12 +146,15 @@ def prepare(cfg: dict, out: Path, quiet: bool = False) -> Run:
         torch.set_num_threads(t["threads"])
     if t["batch_size"] % world:
         raise ConfigError(f"train.batch_size: {t['batch_size']} is not divisible by {world} processes")
-    index = DatasetIndex(cfg["data"]["root"])
-    train_ds = BevDataset(index, cfg["data"]["train_split"], cfg, train=True)
-    val_split = cfg["data"]["val_split"]
-    if val_split and val_split not in index.splits:
-        raise ConfigError(f"data.val_split: no split '{val_split}' in {index.root} (have: {', '.join(index.splits)}; '' for none)")
-    val_ds = BevDataset(index, val_split, cfg, train=False) if val_split and index.splits[val_split] else None
+    if cfg["data"]["shards"]:  # streamed from WebDataset shards (model.shards)
+        index, train_ds, val_ds = shard_datasets(cfg, rank, world, effective_batch(t) // world)
+    else:
+        index = DatasetIndex(cfg["data"]["root"])
+        train_ds = BevDataset(index, cfg["data"]["train_split"], cfg, train=True)
+        val_split = cfg["data"]["val_split"]
+        if val_split and val_split not in index.splits:
+            raise ConfigError(f"data.val_split: no split '{val_split}' in {index.root} (have: {', '.join(index.splits)}; '' for none)")
+        val_ds = BevDataset(index, val_split, cfg, train=False) if val_split and index.splits[val_split] else None
     if len(train_ds) < effective_batch(t):
         raise DataError(f"{index.root}: split '{cfg['data']['train_split']}' has {len(train_ds)} frames, fewer than "
                         f"train.batch_size {t['batch_size']}" + (f" x train.accumulate {t['accumulate']}" if t["accumulate"] > 1 else ""))
@@ -260,13 +264,18 @@ def train_one_epoch(run: Run, bar, alpha: torch.Tensor, max_steps: int | None) -
     returns True when training is finished."""
     cfg, t = run.cfg, run.cfg["train"]
     loss_cfg = cfg["loss"]
-    run.train_ds.set_epoch(run.epoch)
     k = t["accumulate"]  # each optimiser step: one loader batch of batch_size x k samples, k forward/backward passes
-    sampler = EpochBatches(len(run.train_ds), effective_batch(t), t["seed"], run.epoch, run.rank, run.world, run.step_in_epoch)
     # own generator: creating an iterator must not draw from the global RNG (dropout), or a
     # resumed run would diverge from an uninterrupted one
-    loader = DataLoader(run.train_ds, batch_sampler=sampler, num_workers=cfg["data"]["num_workers"],
-                        generator=torch.Generator().manual_seed(t["seed"] + run.epoch), worker_init_fn=DieWithParent())
+    common = dict(num_workers=cfg["data"]["num_workers"], generator=torch.Generator().manual_seed(t["seed"] + run.epoch),
+                  worker_init_fn=DieWithParent())
+    if isinstance(run.train_ds, ShardStream):  # this process's share of each batch, streamed
+        run.train_ds.set_epoch(run.epoch, run.step_in_epoch)
+        loader = DataLoader(run.train_ds, batch_size=effective_batch(t) // run.world, **common)
+    else:
+        run.train_ds.set_epoch(run.epoch)
+        sampler = EpochBatches(len(run.train_ds), effective_batch(t), t["seed"], run.epoch, run.rank, run.world, run.step_in_epoch)
+        loader = DataLoader(run.train_ds, batch_sampler=sampler, **common)
     batches = iter(loader)
     t0, samples = time.time(), 0
     while True:

@@ -739,6 +739,49 @@ def _(ctx):
     return [str(ds), str(ctx.out)]
 
 
+# ------------------------------------------------------------------ issue 35: WebDataset export, training from shards
+add("export-webdataset-no-data", "export-webdataset", lambda ctx: [str(ctx.ws / "nothing"), str(ctx.out)], needles=("DATA", "nothing", "missing"))
+add("export-webdataset-data-is-a-file", "export-webdataset", lambda ctx: [str(ctx.write("f.txt", "x")), str(ctx.out)],
+    needles=("DATA", "is a file"))
+add("export-webdataset-no-index", "export-webdataset", lambda ctx: [str(ctx.write("empty/notes.txt", "x").parent), str(ctx.out)],
+    needles=("index.json", "missing"))
+add("export-webdataset-shard-size-0", "export-webdataset", lambda ctx: [str(ctx.ds()), str(ctx.out), "--shard-size", "0"],
+    needles=("--shard-size",))
+
+
+@case("export-webdataset-out-is-a-file", "export-webdataset", needles=("OUT", "is a file"))
+def _(ctx):
+    ctx.out_is_a_file()
+    return [str(ctx.ds()), str(ctx.out)]
+
+
+@case("export-webdataset-out-not-an-export", "export-webdataset", needles=("OUT", "shards.json"))
+def _(ctx):
+    ctx.out.mkdir(parents=True)
+    (ctx.out / "mine.txt").write_text("not an export\n")
+    return [str(ctx.ds()), str(ctx.out)]
+
+
+@case("export-webdataset-png-empty", "export-webdataset", needles=("cam_right.png", "0 bytes"))
+def _(ctx):
+    ds = ctx.ds()
+    (_first_frame(ds) / "cam_right.png").write_bytes(b"")
+    return [str(ds), str(ctx.out)]
+
+
+@case("export-webdataset-label-missing", "export-webdataset", needles=("visibility.png", "missing"))
+def _(ctx):
+    ds = ctx.ds()
+    (_first_frame(ds) / "labels" / "visibility.png").unlink()
+    return [str(ds), str(ctx.out)]
+
+
+add("train-shards-missing", "train", train(data={"shards": "nowhere/train-{000000..000003}.tar"}), needles=("shards.json", "missing"))
+add("train-shards-index-not-json", "train", lambda ctx: train(data={"shards": str(ctx.ws / "x/train-000000.tar"),
+                                                                    "shards_index": str(ctx.write("x/shards.json", "{"))})(ctx),
+    needles=("shards.json", "JSON"))
+
+
 @case("export-woodscape-out-not-an-export", "export-woodscape", needles=("OUT", "export.json"))
 def _(ctx):
     ctx.out.mkdir(parents=True)

@@ -134,7 +134,7 @@ def merged(ray_shards, tmp_path_factory):
     return out
 
 
-LATER_STAGES = ("index.json", "audit.json", "report/")  # and each frame's labels/ and camera targets: fuse, audit, report
+LATER_STAGES = ("index.json", "audit.json", "report/", "README.md")  # and each frame's labels/ and camera targets: fuse, audit, report, the card
 
 
 def test_merge_of_two_shards_equals_one_run(merged, tiny_rendered, tiny_dataset):

@@ -91,6 +91,29 @@ def write_camera_targets(frame_dir, table: np.ndarray) -> None:
     write_bytes_atomic(targets_path(frame_dir), buf.getvalue())
 
 
+def camera_targets_bytes(frame_dir, cameras) -> bytes:
+    """The frame's camera_targets.npy as bytes for `cameras` (a shard member): the file when it holds
+    them, else derived from the EXRs (nothing is written into the frame)."""
+    if read_camera_targets(frame_dir, cameras) is not None:
+        return targets_path(frame_dir).read_bytes()
+    buf = io.BytesIO()
+    np.save(buf, derive_camera_targets(frame_dir, cameras), allow_pickle=False)
+    return buf.getvalue()
+
+
+def decode_camera_targets(data: bytes, source, cameras) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """read_camera_targets of a camera_targets.npy held in memory; every camera must be there."""
+    try:
+        table = np.load(io.BytesIO(data), allow_pickle=False)
+    except (OSError, ValueError, EOFError) as exc:
+        raise DatasetError(f"{source}: not a readable camera targets file ({type(exc).__name__})") from None
+    fields = table.dtype.names or ()
+    missing = [n for n in cameras if f"distance_{n}" not in fields or f"semantic_{n}" not in fields]
+    if table.ndim != 2 or missing:
+        raise DatasetError(f"{source}: not a camera targets file for cameras {', '.join(cameras)}")
+    return _per_camera(table, cameras)
+
+
 def _per_camera(table: np.ndarray, cameras) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     return {n: (table[f"distance_{n}"], table[f"semantic_{n}"]) for n in cameras}
 

@@ -14,7 +14,7 @@ import numpy as np
 from common.files import write_bytes_atomic
 
 from .layout import VISIBILITY_SCALE, DatasetError, FrameFiles
-from .png import encode_png, read_png
+from .png import decode_png, encode_png, read_png
 
 LABEL_DTYPES = {"semantic": np.uint8, "instance": np.uint16, "visibility": np.uint16}
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
@@ -105,7 +105,16 @@ def read_labels(frame_dir, num_classes: int | None = None, shape=None) -> dict:
     """semantic (H, W) uint8, instance (H, W) uint16, visibility (H, W) float32 in [0, 1]; the
     first problem label_problems would list raises DatasetError."""
     paths = _paths(FrameFiles(frame_dir))
-    arrays = {k: read_png(path, LABEL_DTYPES[k], 1) for k, path in paths.items()}
+    return _labels({k: read_png(path, LABEL_DTYPES[k], 1) for k, path in paths.items()}, paths, num_classes, shape)
+
+
+def decode_labels(blobs: dict, paths: dict, num_classes: int | None = None, shape=None) -> dict:
+    """read_labels of the three PNGs held in memory (`blobs`: semantic, instance, visibility ->
+    bytes; `paths`: the same keys -> what names each in errors, e.g. a shard member)."""
+    return _labels({k: decode_png(blobs[k], paths[k], LABEL_DTYPES[k], 1) for k in LABEL_DTYPES}, paths, num_classes, shape)
+
+
+def _labels(arrays: dict, paths: dict, num_classes, shape) -> dict:
     problems = _check(arrays, paths, shape, num_classes)
     if problems:
         raise DatasetError(problems[0])

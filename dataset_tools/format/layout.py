@@ -13,6 +13,7 @@ package, `format.*`, where a file has a format of its own):
                                 generation.driver.render)
       audit.json                line-of-sight audit of the labels (format.audit_file; qa.audit)
       report/                   the static HTML QA report (REPORT_DIR; qa.html_report)
+      README.md                 the dataset card (CARD; format.card, the dataset pipeline's last stage)
       <scene>/contact_sheet.png one picture of the scene's first frame (CONTACT_SHEET; qa.contact_sheet)
       <scene>/<frame:06d>/      one frame (frame_dir_name), written by the Blender worker
                                 (blender_scripts.worker) but for labels/ and camera_targets.npy:
@@ -45,6 +46,7 @@ INDEX = "index.json"
 RECIPES_DIR = "recipes"
 AUDIT = "audit.json"
 REPORT_DIR = "report"
+CARD = "README.md"
 META = "meta.json"
 TOPDOWN_EXR = "topdown.exr"
 CONTACT_SHEET = "contact_sheet.png"

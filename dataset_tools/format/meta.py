@@ -148,6 +148,19 @@ def read_meta(frame_dir) -> FrameMeta:
     return FrameMeta.from_dict(d, path)
 
 
+def decode_meta(data: bytes, source) -> FrameMeta:
+    """read_meta of a meta.json held in memory (a shard member); `source` names it in errors."""
+    try:
+        d = json.loads(data.decode("utf-8"))
+    except UnicodeDecodeError as exc:
+        raise DatasetError(f"{source}: not UTF-8 text (byte {exc.start})") from None
+    except json.JSONDecodeError as exc:
+        raise DatasetError(f"{source}: not valid JSON ({exc.msg}, line {exc.lineno})") from None
+    if not isinstance(d, dict):
+        raise DatasetError(f"{source}: must be a JSON object")
+    return FrameMeta.from_dict(d, source)
+
+
 def write_meta(frame_dir, meta: FrameMeta) -> Path:
     """meta.json of a frame, atomically (keys in FrameMeta's order, one-space indent)."""
     path = FrameFiles(frame_dir).meta

@@ -33,7 +33,16 @@ def read_png(path, dtype=None, channels: int | None = None) -> np.ndarray:
     path = Path(path)
     if not path.is_file():
         raise DatasetError(f"{path}: missing")
-    a = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    return _checked(cv2.imread(str(path), cv2.IMREAD_UNCHANGED), path, dtype, channels)
+
+
+def decode_png(data: bytes, source, dtype=None, channels: int | None = None) -> np.ndarray:
+    """read_png of a PNG held in memory (a shard member); `source` names it in errors."""
+    a = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED) if data else None
+    return _checked(a, source, dtype, channels)
+
+
+def _checked(a, path, dtype, channels) -> np.ndarray:
     if a is None:
         raise DatasetError(f"{path}: not a readable PNG")
     if a.ndim == 3:

@@ -40,10 +40,12 @@ class DatasetIndex:
     """`<root>/index.json` (written by `python -m dataset_tools index`): splits -> frames, class
     names, label grid and rig. Without an index.json it is built in memory from the manifest."""
 
-    def __init__(self, root):
+    def __init__(self, root, data: dict | None = None):
         self.root = Path(root)
         path = self.root / INDEX
-        if path.is_file():
+        if data is not None:  # an index held elsewhere (an export's shards.json), checked as index.json is
+            self.data = check_index(data, path)
+        elif path.is_file():
             self.data = read_index(self.root)
         elif Manifest(self.root).exists():
             self.data = check_index(build_index(self.root), path)

@@ -14,10 +14,12 @@ paper's "easy" split): its scenes share their layout seed with training on purpo
 traffic seed.
 
 Relative paths (rig, recipes) are looked up as given (from the working directory), then beside
-the config, then in the repository. The `labels:` section is the label fusion's settings: it is
-checked at load by dataset_tools.labels.label_fusion.FusionConfig (`cfg["labels"]` is one), so a mistake
-there stops a data set before anything renders; `load_labels` reads only that section (what `fuse
---config` and `audit --config` take).
+the config, then among the toolkit's shipped files (common.resources: the checkout, or the
+installed package's data); `--config tiny` names a preset (configs/dataset/tiny.yaml). The
+`labels:` section is the label fusion's settings: it is checked at load by
+dataset_tools.labels.label_fusion.FusionConfig (`cfg["labels"]` is one), so a mistake there stops a
+data set before anything renders; `load_labels` reads only that section (what `fuse --config` and
+`audit --config` take).
 """
 
 from __future__ import annotations
@@ -26,15 +28,15 @@ from pathlib import Path
 
 from common.errors import ConfigError
 from common.files import read_yaml
+from common.resources import presets, resolve_input
 from common.schema import Any, Bool, List, Name, Num, Section, Str, deep_merge
 
-from ..format.layout import LABEL_DIR, RECIPES_DIR, REPORT_DIR, SPLITS
+from ..format.layout import CARD, LABEL_DIR, RECIPES_DIR, REPORT_DIR, SPLITS
 from ..labels.label_fusion import FusionConfig
 from .recipe import FAMILIES, WEATHER_PRESETS, load_recipe
 from .sampler import SAMPLE, relit_recipes, sample_recipes
 from .sensor import EFFECTS, OFF as SENSOR_OFF, SENSOR
 
-REPO = Path(__file__).resolve().parents[2]
 DENOISE_QUALITIES = ("high", "balanced", "fast")  # OpenImageDenoise's, as Cycles names them
 
 # render quality presets: the defaults of the render section. draft: fast and clean (tests, the
@@ -100,11 +102,9 @@ def with_quality(d, where: str):
 
 
 def resolve(path, base: Path) -> Path:
-    """A path as given (absolute or from the working directory), else beside the config, else in the repo."""
-    p = Path(path)
-    if p.is_absolute() or p.exists():
-        return p
-    return base / p if (base / p).exists() else REPO / p
+    """A path as given (absolute or from the working directory), else beside the config, else the
+    toolkit's shipped file (common.resources)."""
+    return resolve_input(path, base)
 
 
 def _existing_file(path, option: str) -> Path:
@@ -112,7 +112,7 @@ def _existing_file(path, option: str) -> Path:
     if path.is_dir():
         raise ConfigError(f"{option}: {path}: is a folder, not a file")
     if not path.exists():
-        raise ConfigError(f"{option}: {path}: missing")
+        raise ConfigError(f"{option}: {path}: missing" + ("" if path.suffix else f" (or a preset's name: {', '.join(presets('dataset'))})"))
     return path
 
 
@@ -171,8 +171,8 @@ def load_config(path, option: str = "--config") -> dict:
             if cfg["frames"] is not None:
                 recipe["frames"]["count"] = cfg["frames"]
             name = recipe["name"]
-            if name in (RECIPES_DIR, REPORT_DIR, LABEL_DIR):
-                raise ConfigError(f"{where}.name: '{name}' is a reserved folder name of the data set")
+            if name in (RECIPES_DIR, REPORT_DIR, LABEL_DIR, CARD):
+                raise ConfigError(f"{where}.name: '{name}' is a reserved name of the data set (a folder or file of it)")
             if name in names:
                 raise ConfigError(f"{where}.name: scene name '{name}' used twice")
             names.add(name)

@@ -19,11 +19,11 @@ from pathlib import Path
 from common.backend import WorkerLost, make_backend
 from common.errors import ConfigError
 from common.files import clean_stale_temps, write_text_atomic
+from common.resources import CODE_DIR
 from common.lifetime import DieWithParent
 from common.worker_protocol import RenderTask, read_message
 
 from ..format.layout import RECIPES_DIR, Manifest, WorkerErrorLog, frame_dir_name
-from .dataset_config import REPO
 
 
 def plan(cfg: dict, shard: tuple[int, int]) -> list[tuple[dict, int]]:
@@ -65,8 +65,8 @@ class WorkerProcess:
 
     def __init__(self):
         env = dict(os.environ, PYTHONPATH=os.pathsep.join(
-            [str(REPO)] + [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p]))
-        self.proc = subprocess.Popen([sys.executable, "-m", "blender_scripts.worker"], cwd=str(REPO), env=env,
+            [str(CODE_DIR)] + [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p]))
+        self.proc = subprocess.Popen([sys.executable, "-m", "blender_scripts.worker"], cwd=str(CODE_DIR), env=env,
                                      stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,
                                      text=True, bufsize=1,
                                      preexec_fn=DieWithParent())  # no Blender outlives its driver

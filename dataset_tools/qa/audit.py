@@ -37,6 +37,7 @@ import numpy as np
 from common.cli import ArgumentParser, print_problems
 from common.errors import InputError
 from common.files import write_json_atomic
+from common.resources import dataset_config
 
 from ..format.audit_file import write_audit
 from ..format.labels import read_labels
@@ -266,7 +267,7 @@ def main(argv=None) -> int:
                     help="what --threshold limits (default unexplained; see the module doc)")
     ap.add_argument("--no-pixels", action="store_true", help="do not read the camera passes (no 'unexplained')")
     ap.add_argument("--many", type=float, default=2.0, help="'many pixels': expected kernel pixels >= MANY * tau (default 2)")
-    ap.add_argument("--config", help="dataset config whose labels: section the data set was fused with (tau, kernel)")
+    ap.add_argument("--config", type=dataset_config, help="dataset config whose labels: section the data set was fused with (tau, kernel)")
     ap.add_argument("--json", help="also write the report here")
     ap.add_argument("--no-progress", action="store_true")
     args = ap.parse_args(argv)

@@ -26,7 +26,7 @@ from common.files import clean_stale_temps, write_bytes_atomic, write_figure_ato
 
 from ..format.audit_file import audit_metric, read_audit
 from ..format.labels import read_labels
-from ..format.layout import REPORT_DIR, DatasetError, FrameFiles, frame_dir_name
+from ..format.layout import CARD, REPORT_DIR, DatasetError, FrameFiles, frame_dir_name
 from ..format.meta import FrameMeta
 from ..format.png import read_png
 from ..format.reader import DatasetIndex, downsample_labels
@@ -336,6 +336,7 @@ def frame_link(name: str, depth: int = 0) -> str:
 def overview_page(title: str, idx: DatasetIndex, scenes: dict, st: dict, audit: dict | None, threshold: float,
                   settings: dict) -> str:
     parts = [f"<h1>{esc(title)}</h1>", "<nav>" + " ".join(f"<a href=\"scenes/{esc(s)}.html\">{esc(s)}</a>" for s in scenes) + "</nav>"]
+    parts.append(f"<p class=\"card\">The <a href=\"../{CARD}\">dataset card</a> ({CARD}: licence, classes, splits, cameras, how it was made).</p>")
     parts.append("<div class=\"row\"><section><h2>Data set</h2>" + table(["", ""], [[esc(k), esc(v)] for k, v in settings.items()]))
     rows = []
     for split, refs in idx.splits.items():
