@@ -13,7 +13,8 @@ import tempfile
 import time
 from pathlib import Path
 
-from dataset_tools.generation.dataset_config import REPO, load_config
+from common.resources import CODE_DIR as REPO
+from dataset_tools.generation.dataset_config import load_config
 from dataset_tools.generation.driver import render as generate
 
 SCENES = ("highway_straight", "urban_block")

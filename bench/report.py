@@ -20,7 +20,8 @@ DATASET_FRAMES = 200
 
 def run(frames: int = FRAMES, scene: str = SCENE) -> dict:
     from dataset_tools.fuse import fuse_dataset
-    from dataset_tools.generation.dataset_config import REPO, load_config
+    from common.resources import CODE_DIR as REPO
+    from dataset_tools.generation.dataset_config import load_config
     from dataset_tools.generation.driver import render as generate
     from dataset_tools.labels.label_fusion import FusionConfig
     from dataset_tools.qa.html_report import build_report, report_size

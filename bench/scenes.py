@@ -14,7 +14,8 @@ from pathlib import Path
 import numpy as np
 
 from dataset_tools.format.meta import read_meta
-from dataset_tools.generation.dataset_config import REPO, load_config
+from common.resources import CODE_DIR as REPO
+from dataset_tools.generation.dataset_config import load_config
 from dataset_tools.generation.driver import render as generate
 
 SCENES = ("highway_straight", "urban_block")

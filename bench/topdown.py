@@ -20,7 +20,8 @@ def run(repeat: int = REPEAT) -> dict:
 
     from blender_scripts.build_scene import build_scene, set_frame
     from blender_scripts.render_frame import configure_render, label_mode, render_topdown
-    from dataset_tools.generation.dataset_config import REPO, load_config
+    from common.resources import CODE_DIR as REPO
+    from dataset_tools.generation.dataset_config import load_config
     from dataset_tools.generation.recipe import load_recipe
     from geometry.bev import BevGrid
     from geometry.rig import load_rig

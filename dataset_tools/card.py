@@ -20,7 +20,7 @@ from pathlib import Path
 
 from common.errors import InputError
 
-from .format.audit import read_audit
+from .format.audit_file import read_audit
 from .format.card import read_card, write_card
 from .format.layout import CARD, DatasetError
 from .format.reader import DatasetIndex
