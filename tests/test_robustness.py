@@ -205,6 +205,9 @@ def test_hostile_input(case, tmp_path, mini_dataset, request):
 def test_corpus_covers_every_entry_point():
     assert len(CASES) >= 100
     assert {c.command for c in CASES} == set(COMMANDS)
+    # the count README and docs/errors.md give is the corpus's
+    assert f"{len(CASES)} hostile inputs" in " ".join((ROOT / "README.md").read_text().split())
+    assert f"({len(CASES)} malformed inputs" in (ROOT / "docs/errors.md").read_text()
 
 
 @pytest.mark.parametrize("argv", [["bogus"], ["--bogus"], ["contact-sheet", "somewhere", "--bogus"]])
