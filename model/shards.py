@@ -84,21 +84,35 @@ class ShardStream(IterableDataset):
                 raise DatasetError(f"{', '.join(urls[:3])}: no samples in these shards")
             yield None
 
+    INITIAL = 8  # samples the buffer holds before it starts to serve
+
     def _shuffled(self, source, rng):
         """`source` through a shuffle buffer of `self.buffer` samples, drained at the end of every
-        pass, so a pass never repeats a frame (and is a whole permutation when the buffer holds it)."""
+        pass, so a pass never repeats a frame. It serves from INITIAL samples on while it grows (two
+        in for each one out) to `self.buffer`, as webdataset's shuffle does: waiting for a full
+        buffer (with small passes, the whole pass) before the first sample cost every epoch the
+        time of reading it."""
         buf: list = []
-        for item in source:
+        it = iter(source)
+        for item in it:
             if item is None:
                 rng.shuffle(buf)
                 yield from buf
                 buf = []
-            elif len(buf) < self.buffer:
-                buf.append(item)
-            else:
+                continue
+            buf.append(item)
+            if len(buf) < self.buffer:  # grow: take one more while serving one
+                more = next(it, None)
+                if more is None:  # the pass ended
+                    rng.shuffle(buf)
+                    yield from buf
+                    buf = []
+                    continue
+                buf.append(more)
+            if len(buf) >= min(self.INITIAL, self.buffer):
                 k = rng.randrange(len(buf))
-                item, buf[k] = buf[k], item
-                yield item
+                buf[k], buf[-1] = buf[-1], buf[k]
+                yield buf.pop()
 
     def __iter__(self):
         info = get_worker_info()
