@@ -424,6 +424,12 @@ def _lot_lights(lay: Layout, row_y, x0: float, bay_d: float, length: float, half
 # ---------------------------------------------------------------- roadside
 
 
+def _beside(path: Path, s: float, off: float) -> tuple[float, float, float]:
+    """(x, y, heading) of the point `off` metres left of `path` at arc length s (right when < 0)."""
+    (x, y), h = path.at(s)
+    return x - math.sin(h) * off, y + math.cos(h) * off, h
+
+
 def furnish(lay: Layout, edges: list[Edge], recipe, rng) -> None:
     """Trees (some overhanging the road), street lights and buildings along the edges."""
     rs = recipe["roadside"]
@@ -435,10 +441,7 @@ def furnish(lay: Layout, edges: list[Edge], recipe, rng) -> None:
             continue
 
         def where(s, off):
-            (x, y), h = e.path.at(s)
-            nx, ny = -math.sin(h), math.cos(h)
-            o = e.offset + e.out * off
-            return x + nx * o, y + ny * o, h
+            return _beside(e.path, s, e.offset + e.out * off)
 
         def pick():
             u = rng.uniform(0, total)
@@ -517,17 +520,15 @@ def street_furniture(lay: Layout, edges: list, recipe, rng) -> None:
                         s = a + u
                         break
                     u -= b - a
-                (x, y), h = e.path.at(s)
-                nx, ny = -math.sin(h), math.cos(h)
-                off = e.offset + e.out * ((-0.3 if kind == "sign" else -0.25) if sw > 0 else 1.2)
+                x, y, h = _beside(e.path, s, e.offset + e.out * ((-0.3 if kind == "sign" else -0.25) if sw > 0 else 1.2))
                 z = Z_KERB if sw > 0 else 0.0
                 yaw = h + math.pi / 2  # plates face along the road
                 if kind == "sign":
                     colour = SIGN_COLOURS[int(rng.integers(len(SIGN_COLOURS)))]
-                    lay.add(f"sign{n_sign}", assets.sign_mesh(rng), (x + nx * off, y + ny * off, z), yaw, colour)
+                    lay.add(f"sign{n_sign}", assets.sign_mesh(rng), (x, y, z), yaw, colour)
                     n_sign += 1
                 else:
-                    lay.add(f"bollard{n_bollard}", assets.bollard_mesh(), (x + nx * off, y + ny * off, z), yaw)
+                    lay.add(f"bollard{n_bollard}", assets.bollard_mesh(), (x, y, z), yaw)
                     n_bollard += 1
     # drawn after the signs and bollards, so those stay where they were
     for k, (x, y, z, yaw) in enumerate(lay.signals):
@@ -553,24 +554,20 @@ def _roadside_green_and_rails(lay: Layout, edges: list, recipe, rng) -> None:
                     off = e.offset + e.out * 0.7
                     rail = MeshData().ribbon(Path(e.path.sub(a, b)), off + 0.05, off - 0.05, 0.8, "guardrail", depth=0.32)
                     for s in np.arange(a + 1.0, b, 4.0):
-                        (x, y), h = e.path.at(s)
-                        rail.box((x - math.sin(h) * off, y + math.cos(h) * off, 0.0), (0.1, 0.08, 0.75), h, "guardrail")
+                        x, y, h = _beside(e.path, s, off)
+                        rail.box((x, y, 0.0), (0.1, 0.08, 0.75), h, "guardrail")
                     lay.add(f"guard_rail{k}_{int(a)}", rail)
                 continue
             for _ in range(int(rng.poisson((b - a) / 40))):
                 length = rng.uniform(4.0, 12.0)
                 s = rng.uniform(a, max(a, b - length)) + length / 2
-                (x, y), h = e.path.at(s)
-                off = e.offset + e.out * rng.uniform(0.6, 1.2)
+                x, y, h = _beside(e.path, s, e.offset + e.out * rng.uniform(0.6, 1.2))
                 mesh = assets.hedge_mesh(rng, length, rng.uniform(0.7, 1.4), rng.uniform(0.6, 1.0))
-                lay.add(f"hedge{n_hedge}", mesh, (x - math.sin(h) * off, y + math.cos(h) * off, 0.0), h)
+                lay.add(f"hedge{n_hedge}", mesh, (x, y, 0.0), h)
                 n_hedge += 1
             for _ in range(int(rng.poisson((b - a) / 25))):
-                s = rng.uniform(a, b)
-                (x, y), h = e.path.at(s)
-                off = e.offset + e.out * rng.uniform(0.8, 3.0)
-                lay.add(f"bush{n_bush}", assets.bush_mesh(rng), (x - math.sin(h) * off, y + math.cos(h) * off, 0.0),
-                        float(rng.uniform(0, 2 * math.pi)))
+                x, y, _ = _beside(e.path, rng.uniform(a, b), e.offset + e.out * rng.uniform(0.8, 3.0))
+                lay.add(f"bush{n_bush}", assets.bush_mesh(rng), (x, y, 0.0), float(rng.uniform(0, 2 * math.pi)))
                 n_bush += 1
 
 
@@ -582,11 +579,10 @@ def _pavement_furniture(lay: Layout, rng) -> None:
         side = 1.0 if b > a else -1.0
         for kind, per_m, inset in (("bench", 100.0, 0.45), ("bin", 60.0, 0.35)):
             for s in rng.uniform(0, path.length, int(rng.poisson(path.length / per_m))):
-                (x, y), h = path.at(float(s))
-                off = b - side * inset
+                x, y, h = _beside(path, float(s), b - side * inset)
                 yaw = h + (0.0 if side > 0 else math.pi)  # a bench's seat faces local -y: toward the road
                 mesh = assets.bench_mesh() if kind == "bench" else assets.bin_mesh()
-                lay.add(f"{kind}{n}", mesh, (x - math.sin(h) * off, y + math.cos(h) * off, Z_KERB), yaw)
+                lay.add(f"{kind}{n}", mesh, (x, y, Z_KERB), yaw)
                 n += 1
 
 

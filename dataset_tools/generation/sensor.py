@@ -95,8 +95,7 @@ def motion_flow(camera, cam_to_ego: np.ndarray, position: np.ndarray, instance: 
 
 def exposure_ms(lin: np.ndarray) -> float:
     """The exposure time (ms) an auto-exposure picks for a linear image: longer the darker it is."""
-    lum = lin @ np.array([0.2126, 0.7152, 0.0722], np.float32)
-    return float(np.clip(0.18 / np.exp(np.mean(np.log(lum + 1e-3))), *EXPOSURE_MS))
+    return float(np.clip(0.18 / log_average(lin), *EXPOSURE_MS))
 
 
 def _motion_blur(lin: np.ndarray, flow: np.ndarray) -> np.ndarray:
@@ -134,8 +133,13 @@ def _to_srgb(x):
 
 def auto_exposure(lin: np.ndarray, key: float = 0.18, lo: float = 0.5, hi: float = 4.0) -> float:
     """The gain that brings the log-average luminance of a linear image to `key`, within [lo, hi]."""
+    return float(np.clip(key / log_average(lin), lo, hi))
+
+
+def log_average(lin: np.ndarray):
+    """The log-average luminance of a linear image (what an auto-exposure meters)."""
     lum = lin @ np.array([0.2126, 0.7152, 0.0722], np.float32)
-    return float(np.clip(key / np.exp(np.mean(np.log(lum + 1e-3))), lo, hi))
+    return np.exp(np.mean(np.log(lum + 1e-3)))  # a float32 scalar, as the gains were computed
 
 
 def apply(img: np.ndarray, params: dict, theta: np.ndarray, principal, flow: np.ndarray | None = None) -> np.ndarray:
