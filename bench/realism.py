@@ -49,19 +49,19 @@ ROAD_VEHICLE = {
 GOALS = {"road_vehicle_top5": ">= 0.7", "road_vehicle_top1": ">= 0.4", "s_per_frame_ratio": "<= 1.5"}
 
 
-def _config(root: Path, path: Path) -> Path:
-    """The commit's own medium preset with the bench's scenes."""
+def _config(root: Path, path: Path, scenes: dict) -> Path:
+    """The commit's own medium preset with the bench's `scenes` (a sample block)."""
     cfg = yaml.safe_load((root / "configs/dataset/medium.yaml").read_text())
     cfg["name"] = "realism"
-    cfg["scenes"] = [{"sample": dict(SCENES), "split": "train"}]
+    cfg["scenes"] = [{"sample": dict(scenes), "split": "train"}]
     path.write_text(yaml.safe_dump(cfg))
     return path
 
 
-def render(root: Path, out: Path, scenes: list[str]) -> float:
-    """Render the bench's `scenes` with the code at `root` into `out` (generate resumes, so calls
-    add to it); -> wall seconds, start-up and scene building included."""
-    cfg = _config(root, out.parent / f"{out.name}.yaml")
+def render(root: Path, out: Path, scenes: list[str], sample: dict = SCENES) -> float:
+    """Render `scenes` (names) of the sample block `sample` with the code at `root` into `out`
+    (generate resumes, so calls add to it); -> wall seconds, start-up and scene building included."""
+    cfg = _config(root, out.parent / f"{out.name}.yaml", sample)
     t0 = time.perf_counter()
     r = subprocess.run([sys.executable, "-m", "dataset_tools", "generate", "--config", str(cfg), "--out", str(out),
                         "--workers", "1", "--no-progress", "--scenes", *scenes], cwd=root,
@@ -187,14 +187,14 @@ def _sheet(crops, hits, path: Path, n: int = 48, thumb: int = 96) -> None:
     write_png_atomic(path, canvas)
 
 
-def run(baseline: str | None = BASELINE, keep: Path | None = None) -> dict:
+def run(baseline: str | None = BASELINE, keep: Path | None = None, sample: dict = SCENES) -> dict:
     from bench.model import checkout
 
     with tempfile.TemporaryDirectory(prefix="bench_realism_") as tmp:
         work = Path(keep) if keep else Path(tmp)
         work.mkdir(parents=True, exist_ok=True)
         sheet = (lambda tag: work / f"crops_{tag}.png") if keep else (lambda tag: None)
-        names = [f"{SCENES['prefix']}_{k:04d}" for k in range(SCENES["count"])]
+        names = [f"{sample['prefix']}_{k:04d}" for k in range(sample["count"])]
         halves = (names[: len(names) // 2], names[len(names) // 2:])
         roots = {"head": ROOT}
         if baseline:
@@ -203,7 +203,7 @@ def run(baseline: str | None = BASELINE, keep: Path | None = None) -> dict:
         # A B B A over the two halves of the scenes: a load that changes during the run hits both
         for k, half in enumerate(halves):
             for tag in (roots if k == 0 else list(roots)[::-1]):
-                wall[tag] += render(roots[tag], work / tag, half)
+                wall[tag] += render(roots[tag], work / tag, half, sample)
         res = {**timings(work / "head", wall["head"]), **score(work / "head", sheet("head"))}
         if baseline:
             b = {**timings(work / "baseline", wall["baseline"]), **score(work / "baseline", sheet("baseline"))}
@@ -257,12 +257,16 @@ def main(argv=None) -> int:
     ap.add_argument("--keep", type=Path, help="keep the renders and crop sheets here")
     ap.add_argument("--pictures", type=Path, help="with --keep of an earlier run: write the before/after and "
                                                   "beside-a-real-camera pictures here, render nothing")
+    ap.add_argument("--seed", type=int, default=SCENES["seed"],
+                    help=f"scene seed (default {SCENES['seed']}, the figure of record; another for development)")
+    ap.add_argument("--count", type=int, default=SCENES["count"], help="scenes to render")
     args = ap.parse_args(argv)
     if args.pictures:
         for p in pictures(args.keep, args.pictures):
             print(f"written {p}")
         return 0
-    res = run(None if args.baseline.lower() == "none" else args.baseline, args.keep)
+    sample = {**SCENES, "seed": args.seed, "count": args.count}
+    res = run(None if args.baseline.lower() == "none" else args.baseline, args.keep, sample)
     print(json.dumps(res, indent=1))
     if args.keep:
         write_text_atomic(args.keep / "realism.json", json.dumps(res, indent=1))

@@ -12,6 +12,7 @@ pixel per label cell: rendered `supersample` times finer and reduced to coverage
 
 from __future__ import annotations
 
+import math
 import time
 from contextlib import contextmanager
 from pathlib import Path
@@ -104,9 +105,10 @@ def label_mode(scene):
 
 
 def _render_to_exr(scene, camera, width, height, tmpdir: Path, tag: str, png: Path | None = None,
-                   clock: dict | None = None, post=None):
+                   clock: dict | None = None, post=None, expose=None):
     """Render through `camera` and return Blender's passes as a dict (rows top-down); time spent
-    saving the PNG (after `post(pixels, passes)`, the camera's effects) goes to clock["write"]."""
+    saving the PNG (through the view transform at `expose(passes)` times the light, then
+    `post(pixels, passes)`: the camera's auto-exposure and effects) goes to clock["write"]."""
     use_camera(scene, camera)
     if (scene.render.resolution_x, scene.render.resolution_y) != (width, height):
         raise RuntimeError(f"camera '{camera.name}' renders {scene.render.resolution_x}x"
@@ -131,7 +133,12 @@ def _render_to_exr(scene, camera, width, height, tmpdir: Path, tag: str, png: Pa
         settings.color_mode = "RGB"
         # Blender writes date and render-time text chunks: re-encode so equal pixels give equal bytes
         tmp = tmpdir / f"{tag}.png"
-        bpy.data.images["Render Result"].save_render(str(tmp), scene=scene)
+        gain = expose(out) if expose else 1.0
+        scene.view_settings.exposure = math.log2(gain)  # the scene's light, before the tone curve
+        try:
+            bpy.data.images["Render Result"].save_render(str(tmp), scene=scene)
+        finally:
+            scene.view_settings.exposure = 0.0
         img = read_png(tmp, np.uint8, 3)
         write_png_atomic(png, post(img, out) if post else img)
         tmp.unlink()
@@ -141,9 +148,10 @@ def _render_to_exr(scene, camera, width, height, tmpdir: Path, tag: str, png: Pa
 
 
 def render_fisheye(scene, camera, width, height, out_dir: Path, name: str, tmpdir: Path, clock: dict,
-                   ego_mask: bool = False, post=None) -> None:
+                   ego_mask: bool = False, post=None, expose=None) -> None:
     files = FrameFiles(out_dir)
-    p = _render_to_exr(scene, camera, width, height, tmpdir, f"cam_{name}", files.camera_png(name), clock, post)
+    p = _render_to_exr(scene, camera, width, height, tmpdir, f"cam_{name}", files.camera_png(name), clock, post,
+                       expose)
     t0 = time.perf_counter()
     semantic = np.rint(p["IndexMA.X"]).astype(np.uint32)
     extra = {}
@@ -224,16 +232,19 @@ def render_frame(built, frame_dir: Path, fisheye_sizes: dict, topdown_size: int,
         w, h = fisheye_sizes[name]
         effects[name] = sensor.draw(render_cfg["sensor"], np.random.default_rng([cycles_seed, 7, k]))
         theta, principal = (sensor_geometry or {}).get(name, (None, None))
-        post = None
+        post = expose = None
         if effects[name]:
+            def expose(passes, p=effects[name]):  # metered on the scene's light
+                return sensor.meter(np.stack([passes[f"Combined.{c}"] for c in "RGB"], -1), p)
+
             def post(img, passes, p=effects[name], t=theta, c=principal, rc=rig[name] if rig is not None else None):
                 flow = None
                 if p.get("motion_blur") and rc is not None:
                     pos = np.stack([passes[f"Position.{a}"] for a in "XYZ"], -1)
                     flow = sensor.motion_flow(rc.camera, rc.cam_to_ego, pos, np.rint(passes["IndexOB.X"]).astype(np.int64),
                                               frame_meta["motion"])
-                return sensor.apply(img, p, t, c, flow)
-        render_fisheye(scene, cam, w, h, frame_dir, name, tmpdir, clock, bool(built.ego_body), post)
+                return sensor.apply(img, p, t, c, flow, exposed=True)
+        render_fisheye(scene, cam, w, h, frame_dir, name, tmpdir, clock, bool(built.ego_body), post, expose)
     t1 = time.perf_counter()
     with label_mode(scene):
         td = render_topdown(scene, built.topdown, topdown_size, built.occluders, frame_meta["world_to_ego"], tmpdir,

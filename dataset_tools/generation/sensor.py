@@ -6,20 +6,25 @@ drawn once per frame and camera from the frame's seed (so a frame renders to the
 
 | effect | what | distribution |
 |---|---|---|
-| exposure | auto-exposure: the image's log-average luminance brought to 0.18 (gain 0.5-4x), then an error in stops | error normal, sd 0.2 (clipped to +-0.5) |
+| exposure | auto-exposure: the scene's log-average luminance brought to 0.18 (beyond 4x daylight's exposure, the square root of what is missing: night stays darker than day) by the exposure time (0.1-33 ms), then by analog gain (1-8x), then an error in stops | error normal, sd 0.2 (clipped to +-0.5) |
 | white_balance | red and blue gains against green | normal around 1, sd 0.03 each |
 | vignetting | light falloff, 1 - s (theta / theta_max)^2 by ray angle | s uniform 0.2-0.45 |
 | chromatic_aberration | lateral: red and blue scaled about the principal point | +-k, k uniform 0.0005-0.002 |
 | sharpen | the camera's edge enhancement (unsharp mask, radius 1 px) | amount uniform 0.2-0.6 |
-| noise | shot and read noise, in linear light, amplified with the exposure gain (grainy at night) | shot gain uniform 0.0005-0.002, read sd uniform 0.001-0.003 |
+| noise | shot and read noise, in linear light, amplified by the analog gain (a longer exposure gathers more light, a gain only amplifies: grainy at night) | shot gain uniform 0.0001-0.0004 (a full well of 2,500-10,000 electrons), read sd uniform 0.0005-0.0015 |
 | jpeg | JPEG compression of the stream | quality uniform 70-95 (off unless asked) |
-| motion_blur | the ego's and the traffic's motion during the exposure, which the auto-exposure lengthens in the dark | exposure 1 ms x 0.18 / log-average luminance, 0.1-33 ms (none drawn) |
+| motion_blur | the ego's and the traffic's motion during the exposure, which the auto-exposure lengthens in the dark | the exposure's time (none drawn) |
 
 Motion blur: every pixel's scene point (the render's position pass) is moved as the ego and the
 vehicle it lies on move over the exposure (from the scene's own poses a little before and after the
 frame, `motion_flow`), projected by the camera model at both ends, and the image is averaged along
 that path. By day (about 1 ms) nothing moves a pixel; at night (30 ms) the road beside a car at
 50 km/h smears by tens of pixels in the side cameras.
+
+Exposure is set on the scene's light, not on the 8-bit image: the renderer meters its linear
+image (`meter`) and writes the PNG through its view transform at that exposure (a night frame
+brought up 30-100x from 8 bits would band), then `apply` adds the rest. Called on an 8-bit image
+alone, `apply` meters and scales that image instead.
 
 The geometry (ray angles, principal point) comes from the camera model (`geometry`), so a camera
 with another model gets its own falloff; the green channel is never moved.
@@ -33,6 +38,10 @@ from common.schema import Bool, Section
 
 EFFECTS = ("exposure", "white_balance", "vignetting", "chromatic_aberration", "sharpen", "noise", "jpeg", "motion_blur")
 EXPOSURE_MS = (0.1, 33.0)  # the auto-exposure's exposure times: 1 ms at a log-average of 0.18, 1/30 s at most
+ANALOG_GAIN = (1.0, 8.0)  # the sensor's analog gain, raised only once the exposure is at its longest
+KEY = 0.18  # the log-average luminance the auto-exposure aims at in daylight
+DIM = 4.0  # scenes that need more than DIM x daylight's exposure get the square root of the rest: dusk and
+# night stay darker than day (a camera that brought a night street to a day's grey would show a lit day)
 SENSOR = Section({e: Bool(default=e != "jpeg") for e in EFFECTS})
 OFF = {e: False for e in EFFECTS}
 
@@ -48,8 +57,8 @@ def draw(switches: dict, rng: np.random.Generator) -> dict:
         "vignetting": float(0.2 + 0.25 * u[0]),
         "chromatic_aberration": float((0.0005 + 0.0015 * u[1]) * (1 if u[2] < 0.5 else -1)),
         "sharpen": float(0.2 + 0.4 * u[3]),
-        "shot_gain": float(0.0005 + 0.0015 * u[4]),
-        "read_sd": float(0.001 + 0.002 * u[5]),
+        "shot_gain": float(0.0001 + 0.0003 * u[4]),
+        "read_sd": float(0.0005 + 0.001 * u[5]),
         "jpeg_quality": int(70 + 25 * u[6]),
         "noise_seed": int(u[7] * 2**31),
     }
@@ -93,11 +102,6 @@ def motion_flow(camera, cam_to_ego: np.ndarray, position: np.ndarray, instance: 
     return np.nan_to_num(flow).reshape(h, w, 2).astype(np.float32)
 
 
-def exposure_ms(lin: np.ndarray) -> float:
-    """The exposure time (ms) an auto-exposure picks for a linear image: longer the darker it is."""
-    return float(np.clip(0.18 / log_average(lin), *EXPOSURE_MS))
-
-
 def _motion_blur(lin: np.ndarray, flow: np.ndarray) -> np.ndarray:
     """The image averaged along each pixel's path (flow: the displacement over the exposure)."""
     import cv2
@@ -131,34 +135,47 @@ def _to_srgb(x):
     return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055)
 
 
-def auto_exposure(lin: np.ndarray, key: float = 0.18, lo: float = 0.5, hi: float = 4.0) -> float:
-    """The gain that brings the log-average luminance of a linear image to `key`, within [lo, hi]."""
-    return float(np.clip(key / log_average(lin), lo, hi))
+def meter(lin: np.ndarray, params: dict) -> float:
+    """The auto-exposure of a linear image: sets `params["exposure_ms"]` (with motion blur or
+    exposure) and `params["analog_gain"]` (with exposure), and returns the gain the image is to be
+    taken at (1 without the exposure effect): the exposure time in ms (1 ms brings a log-average of
+    KEY to KEY) times the analog gain times the drawn error."""
+    if not (params.get("motion_blur") or "exposure_ev" in params):
+        return 1.0
+    need = KEY / float(log_average(lin))
+    g = need if need <= DIM else float(np.sqrt(DIM * need))
+    t = float(np.clip(g, *EXPOSURE_MS))
+    params["exposure_ms"] = round(t, 3)
+    if "exposure_ev" not in params:
+        return 1.0
+    a = float(np.clip(g / t, *ANALOG_GAIN))
+    params["analog_gain"] = round(a, 3)
+    return t * a * 2.0 ** params["exposure_ev"]
 
 
 def log_average(lin: np.ndarray):
     """The log-average luminance of a linear image (what an auto-exposure meters)."""
     lum = lin @ np.array([0.2126, 0.7152, 0.0722], np.float32)
-    return np.exp(np.mean(np.log(lum + 1e-3)))  # a float32 scalar, as the gains were computed
+    return np.exp(np.mean(np.log(lum + 1e-4)))  # a float32 scalar; black (1e-4) weighs as 13 stops down
 
 
-def apply(img: np.ndarray, params: dict, theta: np.ndarray, principal, flow: np.ndarray | None = None) -> np.ndarray:
+def apply(img: np.ndarray, params: dict, theta: np.ndarray, principal, flow: np.ndarray | None = None,
+          exposed: bool = False) -> np.ndarray:
     """The camera's image (H, W, 3 uint8) from the rendered one; `params` from `draw` (an empty
-    dict returns the image unchanged). With motion blur, `flow` is `motion_flow` (pixels per second);
-    `params` gains `exposure_ms`, the exposure time chosen (meta.json shows it)."""
+    dict returns the image unchanged). `exposed`: the renderer already took `img` at `meter`'s gain
+    (params hold its exposure_ms and analog_gain); otherwise `img` is metered and scaled here. With
+    motion blur, `flow` is `motion_flow` (pixels per second) and the path is the exposure's
+    (meta.json shows exposure_ms and analog_gain)."""
     import cv2
 
     if not params:
         return img
     lin = _to_linear(img.astype(np.float32) / 255.0)
+    g = 1.0 if exposed else meter(lin, params)
     if params.get("motion_blur") and flow is not None:
-        params["exposure_ms"] = round(exposure_ms(lin), 3)
         scaled = flow * (params["exposure_ms"] / 1000.0)
         if np.abs(scaled).max() >= 0.5:  # under half a pixel anywhere: nothing to see
             lin = _motion_blur(lin, scaled)
-    g = 1.0
-    if "exposure_ev" in params:
-        g = auto_exposure(lin) * 2.0 ** params["exposure_ev"]
     lin = lin * (g * np.asarray(params.get("wb_gains", [1, 1, 1]), np.float32))
     if "vignetting" in params:
         t = np.nan_to_num(theta / np.nanmax(theta), nan=1.0)
@@ -177,7 +194,8 @@ def apply(img: np.ndarray, params: dict, theta: np.ndarray, principal, flow: np.
         lin = lin + params["sharpen"] * (lin - blur)
     if "shot_gain" in params:
         rng = np.random.default_rng(params["noise_seed"])
-        sd = np.sqrt(params["shot_gain"] * g * np.clip(lin, 0, None) + (params["read_sd"] * g) ** 2)
+        a = params.get("analog_gain", 1.0)
+        sd = np.sqrt(params["shot_gain"] * a * np.clip(lin, 0, None) + (params["read_sd"] * a) ** 2)
         lin = lin + sd * rng.standard_normal(lin.shape, dtype=np.float32)
     out = np.rint(_to_srgb(lin) * 255).astype(np.uint8)
     if "jpeg_quality" in params:
