@@ -207,7 +207,10 @@ def rig_for(folder: Path, rig_path: str | None) -> Rig:
 
     if not (folder / META).is_file():
         raise StitchError(f"{folder}: not a rendered frame (no {META}); give --rig")
-    return read_meta(folder).camera_rig()
+    try:
+        return read_meta(folder).camera_rig()
+    except InputError as exc:  # e.g. the meta.json of another simulator's frame
+        raise StitchError(f"{exc}; not a frame rendered here? give --rig") from None
 
 
 MAX_BOUND_M = 500.0  # --bound: half the grid's side at most, metres
