@@ -2,8 +2,9 @@
 
     python predict.py --checkpoint runs/demo/best.pt --frames FRAMES --rig RIG --out OUT
 
-FRAMES is one frame (a folder with one image per rig camera, `<camera>.png|jpg` or `cam_<camera>.png`)
-or a folder of such frame folders. RIG is any rig file `geometry.load_rig` reads (inline cameras,
+FRAMES is one frame (a folder with one image per rig camera, `<camera>.png|jpg` or `cam_<camera>.png`;
+its sub-folders, such as another tool's depth/ or our labels/, are no frames of their own) or a
+folder of such frame folders. RIG is any rig file `geometry.load_rig` reads (inline cameras,
 calibration files of OpenCV, Kalibr, OCamCalib or WoodScape); a rendered frame of ours needs none
 (its meta.json has its rig). The rig must have as many cameras as the training rig; they are
 matched to the model's cameras by name (ours: front, left, rear, right, the training rig's order),
@@ -38,8 +39,11 @@ from model.inference import PredictError, RigModel, in_model_order, write_predic
 from model.run_dir import checkpoint_path
 
 
-def frame_folders(root: Path) -> list[Path]:
-    """The frame folders of FRAMES: its sub-folders that hold images, else itself."""
+def frame_folders(root: Path, names=None) -> list[Path]:
+    """The frame folders of FRAMES: itself where it is one frame (a rendered frame, with its
+    meta.json; or, given the rig's camera `names`, a folder with images of its own and no rendered
+    frames below: a frame of another tool, whose sub-folders such as depth/ are no frames, and whose
+    missing camera image is named), else its sub-folders that hold images, else itself."""
     def has_images(p: Path) -> bool:
         return any(f.suffix.lower() in IMAGE_SUFFIXES for f in p.iterdir() if f.is_file())
 
@@ -49,7 +53,11 @@ def frame_folders(root: Path) -> list[Path]:
 
     if (root / META).is_file():  # one rendered frame (its labels/ folder is no frame of its own)
         return [root]
-    frames = sorted(p for p in root.iterdir() if p.is_dir() and has_images(p))
+    subs = sorted(p for p in root.iterdir() if p.is_dir())
+    if names and has_images(root) and not any((p / META).is_file() for p in subs):
+        image_paths(root, names)  # an image of each camera, or one line naming the first one missing
+        return [root]
+    frames = [p for p in subs if has_images(p)]
     if frames:
         return frames
     if not has_images(root):
@@ -74,13 +82,13 @@ def main(argv=None) -> int:
         raise PredictError(f"--threads: must be >= 0, got {a.threads}")
     if a.threads:
         torch.set_num_threads(a.threads)
-    frames = frame_folders(Path(a.frames))
+    given = load_rig(a.rig) if a.rig else None
+    frames = frame_folders(Path(a.frames), given.names if given else None)
     out = output_dir(Path(a.out))
     model, cfg, ckpt = load_checkpoint(checkpoint_path(a.checkpoint))
     if a.precision:
         cfg = in_precision(model, cfg, a.precision)
     class_names = ckpt["class_names"]
-    given = load_rig(a.rig) if a.rig else None
     described = False
     for frame in frames:
         rig = given or rig_for(frame, None)

@@ -117,30 +117,81 @@ def image_paths(folder: Path, names) -> dict:
     return out
 
 
+JPEG_SOF = {0xC0, 0xC1, 0xC2, 0xC3, 0xC5, 0xC6, 0xC7, 0xC9, 0xCA, 0xCB, 0xCD, 0xCE, 0xCF}  # frame headers (size)
+
+
+def header_size(path: Path) -> tuple[int, int] | None:
+    """(width, height) as a PNG's or JPEG's header gives it, read without decoding anything (and
+    without PIL, whose Image.open refuses a large image with its own unnamed error); None for
+    another format or a header cut short (PIL then says what is wrong)."""
+    import struct
+
+    with open(path, "rb") as f:
+        head = f.read(24)
+        if head[:8] == b"\x89PNG\r\n\x1a\n" and head[12:16] == b"IHDR" and len(head) == 24:
+            w, h = struct.unpack(">II", head[16:24])
+            return w, h
+        if head[:2] != b"\xff\xd8":
+            return None
+        f.seek(2)
+        while True:  # JPEG segments up to the first frame header (SOFn: precision, height, width)
+            if f.read(1) != b"\xff":
+                return None
+            m = f.read(1)
+            while m == b"\xff":  # fill bytes before a marker
+                m = f.read(1)
+            if not m:
+                return None
+            m = m[0]
+            if m == 0x01 or 0xD0 <= m <= 0xD8:  # markers without a length
+                continue
+            seg = f.read(2)
+            if len(seg) < 2:
+                return None
+            n = struct.unpack(">H", seg)[0]
+            if m in JPEG_SOF:
+                sof = f.read(5)
+                if len(sof) < 5:
+                    return None
+                h, w = struct.unpack(">HH", sof[1:5])
+                return w, h
+            if m == 0xDA or n < 2:  # image data before any frame header: not a JPEG we can size
+                return None
+            f.seek(n - 2, 1)
+
+
 def read_image(path: Path) -> np.ndarray:
     """An image file as (H, W, 3) uint8 RGB: 16-bit images scaled to 8 bits (not clipped), grey
     images made RGB; a file that is not an image, or whose header promises more than
-    MAX_IMAGE_PIXELS pixels (a decompression bomb), is refused naming it."""
+    MAX_IMAGE_PIXELS pixels (a decompression bomb), is refused naming it, before anything is
+    decoded (`header_size`; PIL's own limit, a process-wide setting, is left as it is)."""
+    import warnings
+
     from PIL import Image
 
-    limit, Image.MAX_IMAGE_PIXELS = Image.MAX_IMAGE_PIXELS, None  # we check the header's size ourselves, naming it
+    def too_many(w, h):
+        return StitchError(f"{path}: {w}x{h} pixels, more than an image may have ({MAX_IMAGE_PIXELS})")
+
     try:
-        with Image.open(path) as im:
-            Image.MAX_IMAGE_PIXELS = limit
+        size = header_size(path)
+        if size and size[0] * size[1] > MAX_IMAGE_PIXELS:
+            raise too_many(*size)
+        with warnings.catch_warnings():  # PIL warns above its own limit, below ours: the size is checked
+            warnings.simplefilter("ignore", Image.DecompressionBombWarning)
+            im = Image.open(path)
+        with im:
             w, h = im.size
-            if w * h > MAX_IMAGE_PIXELS:
-                raise StitchError(f"{path}: {w}x{h} pixels, more than an image may have ({MAX_IMAGE_PIXELS})")
+            if w * h > MAX_IMAGE_PIXELS:  # a format header_size does not read
+                raise too_many(w, h)
             if im.mode in ("I;16", "I;16B", "I;16L", "I;16N", "I"):  # 16-bit grey: scale 0..65535 to 0..255
                 a = np.asarray(im).astype(np.float64)
                 a = np.clip(np.rint(a / 257.0), 0, 255).astype(np.uint8)
                 return np.repeat(a[..., None], 3, axis=-1)
             return np.asarray(im.convert("RGB"))
-    except Image.DecompressionBombError as exc:
-        raise StitchError(f"{path}: too many pixels to be an image ({exc})"[:300]) from None
+    except Image.DecompressionBombError as exc:  # a format header_size does not read, beyond PIL's limit
+        raise StitchError(f"{path}: more pixels than an image may have ({MAX_IMAGE_PIXELS}): {exc}"[:300]) from None
     except OSError as exc:
         raise StitchError(f"{path}: not a readable image ({exc})") from None
-    finally:
-        Image.MAX_IMAGE_PIXELS = limit
 
 
 def read_images(folder: Path, names) -> dict:
@@ -156,7 +207,10 @@ def rig_for(folder: Path, rig_path: str | None) -> Rig:
 
     if not (folder / META).is_file():
         raise StitchError(f"{folder}: not a rendered frame (no {META}); give --rig")
-    return read_meta(folder).camera_rig()
+    try:
+        return read_meta(folder).camera_rig()
+    except InputError as exc:  # e.g. the meta.json of another simulator's frame
+        raise StitchError(f"{exc}; not a frame rendered here? give --rig") from None
 
 
 MAX_BOUND_M = 500.0  # --bound: half the grid's side at most, metres

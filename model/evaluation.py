@@ -159,12 +159,14 @@ def evaluate_split(model, cfg, index: DatasetIndex, split: str, out: EvalDir, pi
     return res
 
 
-def open_checkpoint(checkpoint, data=None, expect_config: dict | None = None, precision: str | None = None, label: str = ""):
+def open_checkpoint(checkpoint, data=None, expect_config: dict | None = None, precision: str | None = None, label: str = "",
+                    describe: bool = False):
     """-> (model in eval mode, config, checkpoint dict, DatasetIndex) for scoring a checkpoint on
     its data set (or on `data`, a data set root with the same rig and classes: the same cameras,
     calibrations up to a resize, and poses, not only the same names); `precision` (fp32 | bf16) runs
     it in another precision than it was trained in (model.precision). `label` ("--compare A") starts
-    every error line, so that it says which checkpoint it is about."""
+    every error line, so that it says which checkpoint it is about. `describe`: print once what each
+    camera of the checkpoint's rig became (as every command that loads a rig does)."""
     from common.errors import InputError
     from geometry.rig import rig_difference, rig_from_dict
 
@@ -179,7 +181,8 @@ def open_checkpoint(checkpoint, data=None, expect_config: dict | None = None, pr
         if data:
             cfg = {**cfg, "data": {**cfg["data"], "root": data}}
         index = DatasetIndex(cfg["data"]["root"])
-        diff = rig_difference(rig_from_dict(ckpt["rig"], f"{checkpoint}: rig"), index.rig)
+        rig = rig_from_dict(ckpt["rig"], f"{checkpoint}: rig")
+        diff = rig_difference(rig, index.rig)
         if diff:
             raise EvalError(f"{index.root}: rendered with another rig than the checkpoint {checkpoint} was trained on ({diff})")
         if len(index.class_names) != ckpt["num_classes"]:
@@ -188,6 +191,9 @@ def open_checkpoint(checkpoint, data=None, expect_config: dict | None = None, pr
         if not head:
             raise
         raise EvalError(f"{head}{exc}") from None
+    if describe:
+        for line in rig.describe():
+            print(f"rig {checkpoint}: {line}", flush=True)
     return model, cfg, ckpt, index
 
 
@@ -203,7 +209,7 @@ def evaluate_checkpoint(checkpoint, split: str = "all", out=None, data=None, exp
     every split that has frames); writes metrics.json and table.md (and the pictures) into `out`
     (default: the run folder's eval/). -> (the Markdown table, the output folder)."""
     checkpoint = checkpoint_path(checkpoint)
-    model, cfg, ckpt, index = open_checkpoint(checkpoint, data, expect_config, precision)
+    model, cfg, ckpt, index = open_checkpoint(checkpoint, data, expect_config, precision, describe=True)
     splits = [s for s in SPLITS if index.splits.get(s)] if split == "all" else [split]
     if not splits:
         raise EvalError(f"{index.root}: no split has frames")
@@ -237,8 +243,8 @@ def compare_checkpoints(checkpoint_a, checkpoint_b, split: str = "all", out=None
     -> (the Markdown table, the output folder)."""
     a = _labelled(checkpoint_path, checkpoint_a, "--compare A")
     b = _labelled(checkpoint_path, checkpoint_b, "--compare B")
-    model_a, cfg_a, ckpt_a, index = open_checkpoint(a, data, precision=precision[0], label="--compare A")
-    model_b, cfg_b, ckpt_b, _ = open_checkpoint(b, str(index.root), precision=precision[1], label="--compare B")
+    model_a, cfg_a, ckpt_a, index = open_checkpoint(a, data, precision=precision[0], label="--compare A", describe=True)
+    model_b, cfg_b, ckpt_b, _ = open_checkpoint(b, str(index.root), precision=precision[1], label="--compare B", describe=True)
     if cfg_a["data"]["grid"] != cfg_b["data"]["grid"]:
         raise EvalError(f"--compare B: {b}: scores on the grid {cfg_b['data']['grid']}, A ({a}) on {cfg_a['data']['grid']}: "
                         "not the same cells to compare")

@@ -713,6 +713,57 @@ add("predict-image-1x1", "predict", _predict(frame=lambda ctx, f: tiny_png(ctx, 
     needles=("cam_rear.png", "not a resize"))
 add("predict-image-bomb", "predict", _predict(frame=lambda ctx, f: (f / "cam_left.png").write_bytes(png_header(60000, 40000))),
     needles=("cam_left.png", "60000x40000"))
+# one frame of another simulator: its own meta.json (not ours), its own rig file, its own camera
+# layout (nuScenes' six cameras) and its own image names
+SIM_META = ('{"simulator": "CARLA 0.9.15", "frame": 12, "sensors": [{"id": "front", "type": "sensor.camera.rgb", "fov": 190, '
+            '"transform": {"x": 3.7, "z": 0.6, "pitch": -20}}]}')
+SIM_RIG = ("sensors:\n" + "".join(f"  - {{type: sensor.camera.rgb, id: {n}, x: 2.0, z: 1.0, pitch: -30, yaw: {y}, width: 64, height: 40, fov: 190}}\n"
+                                   for n, y in (("front", 0), ("left", -90), ("rear", 180), ("right", 90))))
+NUSCENES = ("CAM_FRONT", "CAM_FRONT_LEFT", "CAM_FRONT_RIGHT", "CAM_BACK", "CAM_BACK_LEFT", "CAM_BACK_RIGHT")
+
+
+def _other_simulator_meta(ctx, f):
+    (f / "meta.json").write_text(SIM_META)
+
+
+def _our_rig_cameras(ctx) -> dict:
+    return json.loads((_first_frame(ctx.mini) / "meta.json").read_text())["rig"]["cameras"]  # the data set's, unedited
+
+
+def _nuscenes_rig(ctx):
+    import copy
+
+    import yaml
+
+    front = _our_rig_cameras(ctx)["front"]
+    return ctx.write("r/nus.yaml", yaml.safe_dump({"name": "nuscenes", "cameras": {n: copy.deepcopy(front) for n in NUSCENES}}))
+
+
+def _our_rig(ctx):
+    import yaml
+
+    return ctx.write("r/ours.yaml", yaml.safe_dump({"name": "ours", "cameras": _our_rig_cameras(ctx)}))
+
+
+def _images_named_otherwise(ctx, f):
+    """The frame's images as another simulator names them (CAM_FRONT.png, ...), without our meta.json."""
+    (f / "meta.json").unlink()
+    for ours, theirs in (("front", "CAM_FRONT"), ("left", "CAM_LEFT"), ("rear", "CAM_BACK"), ("right", "CAM_RIGHT")):
+        (f / f"cam_{ours}.png").rename(f / f"{theirs}.png")
+
+
+add("stitch-frame-other-simulator", "stitch", _stitch_frame(_other_simulator_meta), needles=("meta.json", "simulator", "--rig"))
+add("predict-frame-other-simulator", "predict", _predict(frame=_other_simulator_meta), needles=("meta.json", "simulator", "--rig"))
+add("stitch-rig-other-simulator", "stitch", lambda ctx: [str(_first_frame(ctx.ds())), "--out", str(ctx.out / "bev.png"),
+                                                         "--rig", str(ctx.write("r/carla.yaml", SIM_RIG))],
+    needles=("carla.yaml", "cameras"))
+add("predict-rig-other-simulator", "predict", _predict(rig=lambda ctx: ctx.write("r/carla.yaml", SIM_RIG)), needles=("carla.yaml", "cameras"))
+add("predict-rig-other-simulator-layout", "predict", _predict(rig=_nuscenes_rig), needles=("--rig", "nus.yaml", "6 cameras"))
+add("predict-frame-other-simulator-names", "predict", _predict(frame=_images_named_otherwise, rig=_our_rig),
+    needles=("no image for camera 'front'", "front.png"))
+add("stitch-frame-other-simulator-names", "stitch",
+    lambda ctx: [str(_frame_with(_images_named_otherwise)(ctx)), "--out", str(ctx.out / "bev.png"), "--rig", str(_our_rig(ctx))],
+    needles=("no image for camera 'front'", "front.png"))
 add("predict-frames-missing", "predict", lambda ctx: ["--checkpoint", str(ctx.ws / "none.pt"), "--frames", str(ctx.ws / "nothing"),
                                                       "--out", str(ctx.out)], needles=("nothing", "no such folder"))
 

@@ -226,3 +226,26 @@ def test_eval_of_a_trained_checkpoint_equals_a_recomputation_from_its_prediction
         r = subprocess.run([sys.executable, "eval.py", "--out", str(tmp_path / "bad"), *args], capture_output=True, text=True, timeout=300)
         assert r.returncode == 2, (args, r.stderr)
         assert message in r.stderr and len(r.stderr.strip().splitlines()) == 1 and "Traceback" not in r.stderr, r.stderr
+
+
+def test_eval_says_once_what_each_camera_of_the_checkpoints_rig_is(tmp_path):
+    """eval.py prints, once at start, what each camera of the checkpoint's rig became (Rig.describe);
+    --compare for each of A and B."""
+    import subprocess
+    import sys
+
+    from test_train import rig_lines, toy_rig_run
+
+    root, run, _ = toy_rig_run(tmp_path)
+    ckpt = run / "latest.pt"
+    r = subprocess.run([sys.executable, "eval.py", "--checkpoint", str(run), "--split", "train", "--out", str(tmp_path / "eval"),
+                        "--pictures", "0", "--threads", "1"], capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr[-2000:]
+    rig_lines(r.stdout, ckpt)
+    assert r.stdout.index("rig ") < r.stdout.index("| Method |"), "at start, before the scores"
+    r = subprocess.run([sys.executable, "eval.py", "--compare", str(run), str(ckpt), "--split", "train", "--out", str(tmp_path / "cmp"),
+                        "--threads", "1"], capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr[-2000:]
+    lines = [ln for ln in r.stdout.splitlines() if ln.startswith("rig ")]
+    rig_lines("\n".join(lines[:4]), ckpt)
+    rig_lines("\n".join(lines[4:]), ckpt)

@@ -127,3 +127,38 @@ def test_cameras_are_matched_by_name_for_a_pooling_with_per_camera_parameters(ti
     three = Rig([rig[n] for n in ("front", "left", "rear")], "mine")
     with pytest.raises(PredictError, match=r"--rig my.yaml: 3 cameras \(front, left, rear\), the model was trained with 4"):
         RigModel(model, cfg, rig.to_dict(), three, "--rig my.yaml")
+
+
+def test_a_frame_of_another_tool_with_sub_folders_is_one_frame(tmp_path):
+    """A frame as another simulator writes it (an image per camera, and a depth/ sub-folder of
+    images of the same names) given with --rig was taken for a folder of frames: predict.py ran on
+    depth/ alone, exit 0. It is one frame; its missing camera image is named."""
+    import json
+    import shutil
+
+    import yaml
+
+    from test_train import toy_rig_run
+
+    root, run, _ = toy_rig_run(tmp_path)
+    src = root / "toy" / "000000"
+    rig = tmp_path / "rig.yaml"
+    rig.write_text(yaml.safe_dump({"name": "theirs", "cameras": json.loads((src / "meta.json").read_text())["rig"]["cameras"]}))
+    frame, plain = tmp_path / "sim" / "f12", tmp_path / "plain" / "f12"
+    for d in (frame / "depth", plain):
+        d.mkdir(parents=True)
+    for cam in ("front", "left", "rear", "right"):
+        for d in (frame, plain):
+            shutil.copy(src / f"cam_{cam}.png", d / f"{cam}.png")
+        shutil.copy(src / "labels" / "semantic.png", frame / "depth" / f"{cam}.png")  # images, but not these cameras'
+    for d in (frame, plain):
+        _run("predict.py", "--checkpoint", run / "latest.pt", "--frames", d, "--rig", rig, "--out", d.parent / "out", "--threads", "1",
+             "--no-pictures")
+    assert [p.name for p in (frame.parent / "out").iterdir()] == ["f12.npz"]
+    ours, theirs = np.load(frame.parent / "out" / "f12.npz"), np.load(plain.parent / "out" / "f12.npz")
+    for k in ours.files:
+        np.testing.assert_array_equal(ours[k], theirs[k])
+    (frame / "rear.png").unlink()
+    r = subprocess.run([sys.executable, "predict.py", "--checkpoint", run / "latest.pt", "--frames", frame, "--rig", rig,
+                        "--out", tmp_path / "x"], cwd=ROOT, capture_output=True, text=True, timeout=600)
+    assert r.returncode == 2 and r.stderr.count("\n") == 1 and f"{frame}: no image for camera 'rear'" in r.stderr, r.stderr

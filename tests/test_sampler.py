@@ -175,3 +175,55 @@ def test_a_scene_that_fails_to_build_does_not_stop_the_others():
     assert got == [("a", 0), ("a", 1), ("b", 0), ("b", 1), ("b", 2)]
     assert failed == {"bad"} and len(errors) == 1 and "bad (recipe DATA/recipes/bad.yaml)" in str(errors[0])
     assert len(started) == 2  # a fresh worker after the failed one (it ends after reporting)
+
+
+def test_generate_with_blender_gives_up_a_scene_that_fails_to_build_and_resumes(tmp_path):
+    """The fake-worker test above, with the real Blender worker: of two scenes, one is the issue's
+    kind of urban block (validated, but no room for its bridge: the layout builder raises in the
+    worker). generate names that scene and its recipe, renders the other, exits 1; the same command
+    again, once the recipe is fixed, renders only the failed scene."""
+    import json
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from dataset_tools.generation.recipe import bridge_stations
+
+    root = Path(__file__).resolve().parents[1]
+    bad = {"family": "urban_block", "seed": 880, "layout": {"lanes_per_direction": 3, "lane_width": 3.73, "block_length": 50, "length": 332},
+           "roadside": {"sidewalk_width": 2.31, "trees": 0.3, "buildings": 0.5, "building_height": [8, 20], "bridges": 1},
+           "traffic": {"density": 0.3}, "ego": {"lane": 1, "speed_kmh": 30}, "weather": {"preset": "clear_noon"}, "frames": {"count": 1}}
+    (tmp_path / "block.yaml").write_text(yaml.safe_dump(bad))
+    cfg = {"name": "fails", "rig": str(root / "configs/rigs/default.yaml"), "fisheye_size": [64, 40],
+           "topdown": {"size": 64, "height_m": 60.0, "bound": 25.0}, "render": {"quality": "draft"}, "frames": 1,
+           "scenes": [{"recipe": str(root / "scenes/highway_straight.yaml"), "name": "good", "split": "train"},
+                      {"recipe": str(tmp_path / "block.yaml"), "name": "bad_block", "split": "train"}]}
+    (tmp_path / "ds.yaml").write_text(yaml.safe_dump(cfg))
+    assert bridge_stations(load_config(tmp_path / "ds.yaml")["scenes"][1]["recipe"]) == []  # it validates, and cannot be built
+    out = tmp_path / "out"
+
+    def generate():
+        return subprocess.run([sys.executable, "-m", "dataset_tools", "generate", "--config", str(tmp_path / "ds.yaml"), "--out", str(out),
+                               "--no-progress", "--workers", "1"], cwd=root, capture_output=True, text=True, timeout=600)
+
+    def rendered():
+        return sorted((d["scene"], d["frame"]) for d in map(json.loads, (out / "manifest.jsonl").read_text().splitlines()))
+
+    r = generate()
+    assert r.returncode == 1 and "Traceback" not in r.stderr, r.stderr
+    lines = r.stderr.strip().splitlines()
+    assert lines[0].startswith(f"generate: bad_block (recipe {out / 'recipes' / 'bad_block.yaml'}): ValueError: roadside.bridges: 1, "
+                               "but no overpass fits"), lines
+    assert "1 scene(s) failed, the others are rendered" in lines[-1] and len(lines) == 2, lines
+    assert "roadside.bridges" in (out / "worker_errors.log").read_text()  # the trace, kept aside
+    assert rendered() == [("good", 0)] and not (out / "bad_block").exists()
+    good = {p: p.stat().st_mtime_ns for p in (out / "good").rglob("*") if p.is_file()}
+    assert any(p.name == "cam_front.png" for p in good) and any(p.name == "meta.json" for p in good)
+
+    bad["roadside"]["bridges"] = 0  # the scene fixed: the same command finishes the data set, and renders only it
+    (tmp_path / "block.yaml").write_text(yaml.safe_dump(bad))
+    r = generate()
+    assert r.returncode == 0, r.stderr[-3000:]
+    assert rendered() == [("bad_block", 0), ("good", 0)]
+    assert {p: p.stat().st_mtime_ns for p in (out / "good").rglob("*") if p.is_file()} == good, "the finished scene is not redone"
+    assert (out / "bad_block" / "000000" / "cam_front.png").is_file()

@@ -89,3 +89,68 @@ def test_an_image_that_is_no_resize_of_its_camera_is_refused():
     images["left"] = np.zeros((320, 400, 3), np.uint8)  # another aspect ratio
     with pytest.raises(StitchError, match="not a resize"):
         rig_of_images(rig, images)
+
+
+def _jpeg_header(width: int, height: int, progressive: bool = False, exif: bytes = b"") -> bytes:
+    """A JPEG that is only its headers (APP0, an APP1 of `exif`, SOF0 or SOF2 of width x height)."""
+    import struct
+
+    def seg(marker, data):
+        return b"\xff" + bytes([marker]) + struct.pack(">H", len(data) + 2) + data
+
+    sof = struct.pack(">BHHB", 8, height, width, 3) + b"".join(bytes([i, 0x11, 0]) for i in (1, 2, 3))
+    return (b"\xff\xd8" + seg(0xE0, b"JFIF\x00\x01\x01\x00\x00\x01\x00\x01\x00\x00") + (seg(0xE1, exif) if exif else b"")
+            + b"\xff\xff" + seg(0xC2 if progressive else 0xC0, sof) + b"\xff\xd9")
+
+
+def test_image_header_size_is_read_without_decoding(tmp_path):
+    """The size check reads the header itself (PNG IHDR, JPEG SOFn after any segments), as PIL reads it."""
+    import cv2
+    from PIL import Image
+
+    from dataset_tools.stitch import header_size
+
+    img = np.random.default_rng(0).integers(0, 255, (37, 53, 3), np.uint8)
+    cv2.imwrite(str(tmp_path / "a.png"), img)
+    cv2.imwrite(str(tmp_path / "b.jpg"), img)
+    cv2.imwrite(str(tmp_path / "c.jpg"), img, [cv2.IMWRITE_JPEG_PROGRESSIVE, 1])
+    exif = Image.Exif()
+    exif[0x010F] = "x" * 3000  # an APP1 of 3 kB before the frame header
+    Image.fromarray(img).save(tmp_path / "d.jpg", exif=exif)
+    for name in ("a.png", "b.jpg", "c.jpg", "d.jpg"):
+        with Image.open(tmp_path / name) as im:
+            assert header_size(tmp_path / name) == im.size == (53, 37), name
+    (tmp_path / "e.jpg").write_bytes(_jpeg_header(60000, 40000, progressive=True, exif=b"Exif\x00\x00" + b"\x00" * 500))
+    assert header_size(tmp_path / "e.jpg") == (60000, 40000)
+    Image.fromarray(img).save(tmp_path / "f.bmp")
+    (tmp_path / "g.png").write_bytes(b"\x89PNG\r\n\x1a\n\x00\x00")  # cut short
+    assert header_size(tmp_path / "f.bmp") is None and header_size(tmp_path / "g.png") is None
+
+
+def test_a_decompression_bomb_is_refused_naming_its_size_and_pil_is_left_alone(tmp_path, monkeypatch):
+    """read_image refused a bomb by switching PIL's process-wide Image.MAX_IMAGE_PIXELS off and on
+    around Image.open; it checks the header's size first and never touches PIL's setting."""
+    import cv2
+    import pytest
+    from PIL import Image
+
+    from dataset_tools.stitch import StitchError, read_image
+    from tests.robust_cases import png_header
+
+    limit, seen = Image.MAX_IMAGE_PIXELS, []
+    real_open = Image.open
+
+    def spy(*args, **kwargs):
+        seen.append(Image.MAX_IMAGE_PIXELS)
+        return real_open(*args, **kwargs)
+
+    monkeypatch.setattr(Image, "open", spy)
+    (tmp_path / "bomb.png").write_bytes(png_header(60000, 40000))
+    (tmp_path / "bomb.jpg").write_bytes(_jpeg_header(60000, 40000))
+    for name in ("bomb.png", "bomb.jpg"):
+        with pytest.raises(StitchError, match=rf"{name}: 60000x40000 pixels, more than an image may have"):
+            read_image(tmp_path / name)
+    assert not seen, "a bomb is refused before PIL opens it"
+    cv2.imwrite(str(tmp_path / "ok.png"), np.zeros((40, 64, 3), np.uint8))
+    assert read_image(tmp_path / "ok.png").shape == (40, 64, 3)
+    assert seen == [limit] and Image.MAX_IMAGE_PIXELS == limit, "PIL's own limit is never switched off"

@@ -246,3 +246,34 @@ def test_mixed_rig_trains_on_real_renders(real_mixed, tmp_path):
     # the five cameras' intrinsics descriptors differ (the pooling can tell the models apart)
     d = model.nominal_intrinsics
     assert torch.cdist(d, d).add(torch.eye(5) * 1e3).min() > 1e-3
+
+
+def toy_rig_run(tmp_path, *extra, quiet=True):
+    """A 1-step run on a 2-frame constructed data set (testing.toy_data: no Blender) of the default
+    rig at 64x40. -> (data set root, run folder, train.py's CompletedProcess)."""
+    from testing.toy_data import write_toy_dataset
+
+    root = write_toy_dataset(tmp_path / "toy", frames=2, image_scale=64 / 480)
+    cfg = write_config(tmp_path / "c.yaml", root, train={"max_steps": 1}, augment={"enabled": False})
+    env = dict(os.environ, PYTHONPATH=str(ROOT), OMP_NUM_THREADS="1")
+    cmd = [sys.executable, "train.py", "--config", str(cfg), "--out", str(tmp_path / "run"), *(["--quiet"] if quiet else []), *extra]
+    r = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr[-3000:]
+    return root, tmp_path / "run", r
+
+
+def rig_lines(stdout: str, source) -> list[str]:
+    """The lines that say what each camera of a rig became (geometry.rig.Rig.describe), checked to
+    name `source` and to come once per camera of the default rig, in its order."""
+    lines = [ln for ln in stdout.splitlines() if ln.startswith("rig ")]
+    assert [ln.split(": ")[1] for ln in lines] == ["front", "left", "rear", "right"], stdout
+    assert all(ln.startswith(f"rig {source}: ") and "opencv_fisheye (exact" in ln for ln in lines), lines
+    return lines
+
+
+def test_train_says_once_what_each_camera_of_the_rig_is(tmp_path):
+    """train.py prints, once at start, what each camera of the rig the model is built on became
+    (the data set's rig, through Rig.describe as generate, stitch and predict.py print it)."""
+    root, run, r = toy_rig_run(tmp_path, quiet=False)
+    rig_lines(r.stdout, root)
+    assert (run / "latest.pt").is_file()
