@@ -39,6 +39,7 @@ MATERIAL_CLASSES = {
     "tyre": "vehicle",
     "headlight": "vehicle",
     "taillight": "vehicle",
+    "reverse_lamp": "vehicle",
     "trim": "vehicle",
     "rim": "vehicle",
     "grille": "vehicle",
@@ -71,7 +72,7 @@ MATERIAL_CLASSES = {
 }
 # the ego car's body: the traffic's materials again, painting the fine class `ego`
 EGO_MATERIALS = {f"ego_{n}": n for n in ("car_paint", "car_glass", "tyre", "rim", "trim", "headlight", "taillight", "grille",
-                                                 "plate", "interior")}
+                                                 "plate", "interior", "reverse_lamp")}
 MATERIAL_CLASSES.update({n: "ego" for n in EGO_MATERIALS})
 
 
@@ -376,6 +377,7 @@ def _vehicle_materials(make, night: bool) -> None:
     if night:
         _emission(b, (1.0, 0.95, 0.85), 40.0)
         _lights_switch(m, b)
+    make("reverse_lamp", (0.35, 0.36, 0.38), rough=0.08, metallic=0.9)[1].inputs["Coat Weight"].default_value = 1.0  # never lit
     m, b = make("taillight", (0.45, 0.01, 0.01), rough=0.1)
     b.inputs["Coat Weight"].default_value = 1.0
     if night:

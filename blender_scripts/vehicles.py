@@ -119,6 +119,7 @@ def _face_materials(style, u, x, belt, top, length):
     um = (u[:-1] + u[1:]) / 2
     xm = (x[:-1] + x[1:]) / 2
     g = np.minimum(top - belt, np.roll(top - belt, -1))[:-1]
+    g_max = np.maximum(top - belt, np.roll(top - belt, -1))[:-1]
     slope = np.abs(np.diff(top)) / np.maximum(np.diff(x), 1e-6)
     sloped = (slope > 0.35) & (g > 0.12)
     cabin = g > 0.15
@@ -146,8 +147,10 @@ def _face_materials(style, u, x, belt, top, length):
     if "bed" in s:
         b0, b1 = s["bed"]
         bed = (um > b0) & (um < b1)
+        back = (um > b1) & (um < b1 + 0.04) & (slope > 0.35) & (g_max > 0.12)  # the cab's back wall: its window
         for j in (6, 7, 8):
             mats[bed, j] = "trim"
+            mats[back, j] = "car_glass"
     return mats
 
 
@@ -211,12 +214,20 @@ def _box_at(m, x0, x1, y0, y1, z0, z1, mat):
     m.box(((x0 + x1) / 2, (y0 + y1) / 2, z0), (x1 - x0, y1 - y0, z1 - z0), mat=mat)
 
 
-def rear_lamps(m: MeshData, xr, hw, belt, clear, low=False):
-    """Tail lights, a dark lower bumper and a plate on a rear face at x = xr."""
-    z = (clear + 0.35, clear + 0.55) if low else (belt - 0.2, belt - 0.03)
+def rear_lamps(m: MeshData, xr, hw, belt, clear, low=False, tall=False, ceiling=None):
+    """Tail lights, a dark lower bumper and a plate on a rear face at x = xr: wide clusters under
+    the boot lid, tall ones up the corners (`tall`: vans, SUVs, pickups, estates), low ones on a
+    truck's box (`low`); never above `ceiling`, the rear face's top."""
+    z = (clear + 0.35, clear + 0.55) if low else (belt - 0.45, belt + 0.1) if tall else (belt - 0.2, belt - 0.03)
+    if ceiling is not None:
+        z = (z[0], min(z[1], ceiling - 0.04))
+    inner = 0.72 if tall else 0.55
     for sd in (-1, 1):
-        y0, y1 = sorted((sd * 0.93 * hw, sd * 0.55 * hw))
+        y0, y1 = sorted((sd * 0.95 * hw, sd * inner * hw))
         _box_at(m, xr, xr + 0.035, y0, y1, *z, "taillight")
+        # the reversing lamp beside it: a clear lens over chrome (a red lamp on a red car reads as paint)
+        y0, y1 = sorted((sd * (inner - 0.1) * hw, sd * inner * hw))
+        _box_at(m, xr, xr + 0.03, y0, y1, z[0], z[0] + 0.4 * (z[1] - z[0]), "reverse_lamp")
     _box_at(m, xr + 0.004, xr + 0.12, -0.9 * hw, 0.9 * hw, clear + 0.02, clear + 0.16, "trim")
     _box_at(m, xr, xr + 0.025, -0.26, 0.26, clear + 0.2, clear + 0.31, "plate")
 
@@ -254,7 +265,7 @@ def body(m: MeshData, style, size, wheel_r, axles, x0=None, rear_details=True):
     _box_at(m, xf - 0.12, xf - 0.004, -0.9 * hf, 0.9 * hf, clear + 0.02, clear + 0.16, "trim")  # lower bumper
     _box_at(m, xf - 0.025, xf, -0.26, 0.26, clear + 0.05, clear + 0.16, "plate")
     if rear_details:
-        rear_lamps(m, xr, hr, br, clear)
+        rear_lamps(m, xr, hr, br, clear, tall=style in ("van", "suv", "pickup", "wagon"), ceiling=float(top[0]))
     # mirrors at the foot of the windscreen, outside the doors (the body is narrower than the box)
     g = top - belt
     cab = np.nonzero(g > 0.15)[0]

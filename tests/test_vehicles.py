@@ -11,7 +11,7 @@ from blender_scripts.materials import MATERIAL_CLASSES
 from blender_scripts.vehicles import KIND_STYLES
 
 STYLES = [(kind, style) for kind, styles in KIND_STYLES.items() for style in styles]
-PARTS = {"car_paint", "car_glass", "tyre", "rim", "headlight", "taillight", "plate", "grille", "trim"}
+PARTS = {"car_paint", "car_glass", "tyre", "rim", "headlight", "taillight", "reverse_lamp", "plate", "grille", "trim"}
 
 
 @pytest.mark.parametrize("kind,style", STYLES)
