@@ -101,7 +101,7 @@ class BevDataset(Dataset):
 
     def __getitem__(self, i: int) -> dict:
         ref = self.refs[i]
-        f = self.frames[i] if self.frames is not None else read_frame(ref, cameras=self.names, num_classes=len(self.class_names))
+        f = self.frames[i] if self.frames is not None else read_frame(ref, cameras=self.names, num_classes=len(self.class_names), instance=False)
         return self.make_sample(ref, f, i)
 
     def make_sample(self, ref, f: dict, i: int) -> dict:

@@ -130,7 +130,7 @@ class ShardStream(IterableDataset):
 
     def _sample(self, url: str, key: str, members: dict) -> dict:
         ds = self.ds
-        f = decode_sample(url, key, members, ds.names, len(ds.class_names), targets=ds.camera_targets)
+        f = decode_sample(url, key, members, ds.names, len(ds.class_names), targets=ds.camera_targets, instance=False)
         pos = f["frame"].get("position") if isinstance(f["frame"], dict) else None
         if not isinstance(pos, int) or not 0 <= pos < len(ds.refs) or ds.refs[pos].scene != f["frame"].get("scene"):
             raise DatasetError(f"{url}: sample {key}: frame.json does not match shards.json's split (export again)")
@@ -147,7 +147,7 @@ def in_memory(index: DatasetIndex, urls: list[str], split: str, cfg: dict) -> Be
     """A split read from its shards into memory (validation), as a BevDataset."""
     ds = BevDataset(index, split, cfg, train=False, frames={})
     for url, key, members in shard_samples(urls):
-        f = decode_sample(url, key, members, ds.names, len(ds.class_names), targets=False)
+        f = decode_sample(url, key, members, ds.names, len(ds.class_names), targets=False, instance=False)
         ds.frames[f["frame"]["position"]] = f
     if sorted(ds.frames) != list(range(len(ds.refs))):
         raise DatasetError(f"{urls[0]}: split '{split}' holds {len(ds.frames)} frames, shards.json lists {len(ds.refs)}")

@@ -74,6 +74,36 @@ def test_shards_read_back_as_the_folder(tiny_dataset, tiny_shards, tmp_path):
         assert (again / f.name).read_bytes() == f.read_bytes(), f.name
 
 
+
+def test_mapped_shards_read_as_webdataset_reads_them(tiny_shards, tmp_path):
+    """A local shard is memory-mapped and its headers read by _tar_members; what it yields is what
+    webdataset's tarfile reader yields (through a pipe: URL), member for member; a damaged shard
+    is one DatasetError line; training decodes no instance labels."""
+    from dataset_tools.format.layout import DatasetError
+    from dataset_tools.format.shards import _tar_members
+
+    url = str(tiny_shards / "train-000000.tar")
+    mapped, piped = list(shard_samples([url])), list(shard_samples(["pipe:cat " + url]))
+    assert [k for _, k, _ in mapped] == [k for _, k, _ in piped] and len(mapped) == 4
+    for (_, _, a), (_, _, b) in zip(mapped, piped):
+        assert sorted(a) == sorted(b) and all(bytes(a[n]) == b[n] for n in a)
+    raw = (tiny_shards / "train-000000.tar").read_bytes()
+    second = _tar_members(raw)[1][1] - 512  # the second member's header
+    cut, flipped = tmp_path / "cut.tar", tmp_path / "flipped.tar"
+    cut.write_bytes(raw[: len(raw) // 2 + 100])
+    flipped.write_bytes(raw[:second + 5] + bytes([raw[second + 5] ^ 0x41]) + raw[second + 6:])
+    for bad, why in ((cut, "unexpected end of data"), (flipped, "checksum")):
+        with pytest.raises(DatasetError, match=why) as e:
+            list(shard_samples([str(bad)]))
+        assert str(bad) in str(e.value) and "\n" not in str(e.value)
+    _, key, members = mapped[0]
+    cams = read_shard_index(tiny_shards)["cameras"]
+    lean = decode_sample(url, key, members, cams, instance=False)
+    full = decode_sample(url, key, members, cams)
+    assert "instance" not in lean and "instance" in full
+    np.testing.assert_array_equal(lean["semantic"], full["semantic"])
+    assert not lean["camera_targets"][cams[0]][0].flags.writeable  # a view of the mapped shard, not a copy
+
 def test_card_front_matter_names_every_split(tiny_dataset, tiny_shards):
     idx = DatasetIndex(tiny_dataset)
     counts = {s: len(r) for s, r in idx.splits.items() if r}

@@ -102,10 +102,21 @@ def camera_targets_bytes(frame_dir, cameras) -> bytes:
 
 
 def decode_camera_targets(data: bytes, source, cameras) -> dict[str, tuple[np.ndarray, np.ndarray]]:
-    """read_camera_targets of a camera_targets.npy held in memory; every camera must be there."""
+    """read_camera_targets of a camera_targets.npy held in memory (bytes or a memoryview, e.g. of a
+    mapped shard); every camera must be there. The table is a read-only view of `data`, not a copy
+    (a sample reads a few hundred of its pixels, as from the memory-mapped file)."""
     try:
-        table = np.load(io.BytesIO(data), allow_pickle=False)
-    except (OSError, ValueError, EOFError) as exc:
+        fmt = np.lib.format
+        head = io.BytesIO(bytes(data[:4096]))  # magic and header (np.save writes a few hundred bytes at most)
+        read_header = {(1, 0): fmt.read_array_header_1_0, (2, 0): fmt.read_array_header_2_0}.get(fmt.read_magic(head))
+        if read_header is None:  # a version np.save writes only for odd field names: np.load's copy
+            table = np.load(io.BytesIO(data), allow_pickle=False)
+        else:
+            shape, fortran, dtype = read_header(head)
+            if dtype.hasobject or fortran:
+                raise ValueError("not a plain C-order array")
+            table = np.frombuffer(data, dtype, count=int(np.prod(shape)), offset=head.tell()).reshape(shape)
+    except (OSError, ValueError, EOFError, TypeError) as exc:
         raise DatasetError(f"{source}: not a readable camera targets file ({type(exc).__name__})") from None
     fields = table.dtype.names or ()
     missing = [n for n in cameras if f"distance_{n}" not in fields or f"semantic_{n}" not in fields]

@@ -101,17 +101,20 @@ def label_problems(frame_dir, shape=None, num_classes: int | None = None) -> lis
     return problems + _check(arrays, paths, shape, num_classes)
 
 
-def read_labels(frame_dir, num_classes: int | None = None, shape=None) -> dict:
+def read_labels(frame_dir, num_classes: int | None = None, shape=None, instance: bool = True) -> dict:
     """semantic (H, W) uint8, instance (H, W) uint16, visibility (H, W) float32 in [0, 1]; the
-    first problem label_problems would list raises DatasetError."""
+    first problem label_problems would list raises DatasetError. `instance=False`: the instance
+    PNG is not read (a training sample has no use for it)."""
     paths = _paths(FrameFiles(frame_dir))
-    return _labels({k: read_png(path, LABEL_DTYPES[k], 1) for k, path in paths.items()}, paths, num_classes, shape)
+    return _labels({k: read_png(path, LABEL_DTYPES[k], 1) for k, path in paths.items() if instance or k != "instance"},
+                   paths, num_classes, shape)
 
 
-def decode_labels(blobs: dict, paths: dict, num_classes: int | None = None, shape=None) -> dict:
-    """read_labels of the three PNGs held in memory (`blobs`: semantic, instance, visibility ->
-    bytes; `paths`: the same keys -> what names each in errors, e.g. a shard member)."""
-    return _labels({k: decode_png(blobs[k], paths[k], LABEL_DTYPES[k], 1) for k in LABEL_DTYPES}, paths, num_classes, shape)
+def decode_labels(blobs: dict, paths: dict, num_classes: int | None = None, shape=None, instance: bool = True) -> dict:
+    """read_labels of the PNGs held in memory (`blobs`: semantic, instance, visibility -> bytes;
+    `paths`: the same keys -> what names each in errors, e.g. a shard member)."""
+    return _labels({k: decode_png(blobs[k], paths[k], LABEL_DTYPES[k], 1) for k in LABEL_DTYPES if instance or k != "instance"},
+                   paths, num_classes, shape)
 
 
 def _labels(arrays: dict, paths: dict, num_classes, shape) -> dict:

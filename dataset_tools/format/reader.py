@@ -91,17 +91,17 @@ class DatasetIndex:
         return f"DatasetIndex({self.root}, {sizes})"
 
 
-def read_frame(ref, cameras=None, num_classes: int | None = None) -> dict:
+def read_frame(ref, cameras=None, num_classes: int | None = None, instance: bool = True) -> dict:
     """One frame: images {name: (H, W, 3) uint8 RGB}, semantic (uint8), instance (uint16),
     visibility (float32 in [0, 1]) and meta (FrameMeta). `ref` is a FrameRef or a frame directory;
     `cameras` picks camera names (default: every cam_<name>.png of the frame); `num_classes`
-    refuses semantic ids beyond it."""
+    refuses semantic ids beyond it; `instance=False` leaves the instance labels unread."""
     files = FrameFiles(ref.dir if isinstance(ref, FrameRef) else ref)
     names = files.camera_names() if cameras is None else list(cameras)
     if not names:
         raise DatasetError(f"{files.dir}: no cam_<name>.png images")
     images = {n: read_png(files.camera_png(n), np.uint8, 3) for n in names}
-    out = {"images": images, **read_labels(files.dir, num_classes)}
+    out = {"images": images, **read_labels(files.dir, num_classes, instance=instance)}
     out["meta"] = read_meta(files.dir)
     return out
 

@@ -23,13 +23,19 @@ a scene name written `%2E`); its members are `<key>.<name>` for each name of `sa
 
 Members are stored in a fixed order with zero times and owners, so equal frames give equal
 shards. Reading needs no checkout: `read_shard_index` (a local folder or shards.json) and
-`shard_samples(urls)` (local paths, `file:` or `pipe:` URLs: webdataset's `gopen`).
+`shard_samples(urls)` (local paths, `file:` or `pipe:` URLs: webdataset's `gopen`). A local shard
+is memory-mapped, its ustar headers read by `_tar_members` and its members handed out as views
+(no copies: a training sample touches only the bytes it decodes, as the folder loader reads only
+its files; exports replace shards atomically, so a mapped shard never changes under a reader);
+any other tar (compressed, pax headers) and every URL go through webdataset's tarfile reader.
+`decode_sample` decodes what a sample needs with the folder reader's decoders.
 """
 
 from __future__ import annotations
 
 import io
 import json
+import mmap
 import re
 import tarfile
 from pathlib import Path
@@ -200,10 +206,68 @@ def local_path(url: str) -> Path | None:
     return Path(url)
 
 
+_BLOCK = 512
+_SKIP_META = re.compile(r"__[^/]*__($|/)")  # webdataset's tar_file_iterator skips these names
+
+
+def _tar_members(buf) -> list[tuple[str, int, int]] | None:
+    """(name, offset of its data, size) of every regular file of the uncompressed tar in `buf`,
+    read from its 512-byte headers (what write_shard writes: ustar, plain files and folders);
+    None for a tar this does not read (compressed, pax or GNU long names, links), which tarfile
+    then reads. ValueError for a damaged one (a bad header checksum, cut short)."""
+    out, pos, end = [], 0, len(buf)
+    while pos < end:
+        if pos + _BLOCK > end:
+            raise ValueError("unexpected end of data")
+        h = bytes(buf[pos:pos + _BLOCK])
+        if not any(h):  # the end-of-archive blocks
+            return out
+        try:
+            checksum = int(h[148:156].split(b"\0", 1)[0].strip(), 8)
+            size = int(h[124:136].split(b"\0", 1)[0].strip() or b"0", 8)
+        except ValueError:  # not octal: GNU base-256 sizes, or not a tar header at all (compressed)
+            if pos == 0:
+                return None
+            raise ValueError(f"damaged header at byte {pos}") from None
+        if sum(h[:148]) + 256 + sum(h[156:]) != checksum:  # the checksum counts its own field as spaces
+            if pos == 0:
+                return None
+            raise ValueError(f"bad header checksum at byte {pos}")
+        kind, data = h[156:157], pos + _BLOCK
+        if kind in (b"0", b"\0"):
+            name = h[:100].split(b"\0", 1)[0]
+            if h[257:262] == b"ustar" and h[345] != 0:  # a long name: prefix '/' name
+                name = h[345:500].split(b"\0", 1)[0] + b"/" + name
+            if data + size > end:
+                raise ValueError("unexpected end of data")
+            out.append((name.decode("utf-8", "surrogateescape"), data, size))
+        elif kind != b"5":  # pax headers, GNU long names, links, devices: tarfile's business
+            return None
+        pos = data + -(-size // _BLOCK) * _BLOCK
+    return out
+
+
+def _mapped_files(path: Path, url: str):
+    """webdataset's tar_file_expander for a local uncompressed shard, without its copies: the
+    file is memory-mapped and every member is a memoryview of it ({"fname", "data", "__url__"},
+    then {} at the end); None when `_tar_members` leaves the shard to tarfile."""
+    if path.stat().st_size == 0:
+        return None
+    with open(path, "rb") as f:
+        buf = memoryview(mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ))
+    members = _tar_members(buf)
+    if members is None:
+        return None
+    files = [{"fname": name, "data": buf[at:at + size], "__url__": url} for name, at, size in members
+             if not (("/" not in name and name.startswith("__") and name.endswith("__")) or _SKIP_META.match(name))]
+    return files + [{}]
+
+
 def shard_samples(urls):
-    """(url, key, {member name: bytes}) of every sample of the shards at `urls`, in order
-    (webdataset reads them: local paths, `file:` and `pipe:` URLs). A missing or damaged shard is
-    one DatasetError line naming it."""
+    """(url, key, {member name: bytes-like}) of every sample of the shards at `urls`, in order
+    (webdataset reads them: local paths, `file:` and `pipe:` URLs; members are bytes, or read-only
+    memoryviews of a local shard, which is memory-mapped instead of read and copied member by
+    member). A missing or damaged shard is one DatasetError line naming it."""
     from webdataset.gopen import gopen
     from webdataset.tariterators import group_by_keys, tar_file_expander
 
@@ -211,13 +275,16 @@ def shard_samples(urls):
         path = local_path(url)
         if path is not None and not path.is_file():
             raise DatasetError(f"{url}: missing shard")
+        stream = None
         try:
-            stream = gopen(str(path) if path is not None else url, "rb")
-        except Exception as exc:  # gopen raises ValueError for unknown schemes, OSError for files
-            raise DatasetError(f"{url}: cannot open ({exc})") from None
-        try:
-            members = tar_file_expander([{"url": url, "stream": stream}])
-            for s in group_by_keys(members, lcase=False):
+            files = _mapped_files(path, url) if path is not None else None
+            if files is None:
+                try:
+                    stream = gopen(str(path) if path is not None else url, "rb")
+                except Exception as exc:  # gopen raises ValueError for unknown schemes, OSError for files
+                    raise DatasetError(f"{url}: cannot open ({exc})") from None
+                files = tar_file_expander([{"url": url, "stream": stream}])
+            for s in group_by_keys(files, lcase=False):
                 key = s.pop("__key__")
                 s.pop("__url__", None)
                 s.pop("__local_path__", None)
@@ -225,14 +292,16 @@ def shard_samples(urls):
         except (tarfile.TarError, OSError, ValueError) as exc:
             raise DatasetError(f"{url}: not a readable shard ({str(exc).splitlines()[0] if str(exc) else type(exc).__name__})") from None
         finally:
-            stream.close()
+            if stream is not None:
+                stream.close()
 
 
 def decode_sample(url: str, key: str, members: dict, cameras, num_classes: int | None = None,
-                  targets: bool = True) -> dict:
+                  targets: bool = True, instance: bool = True) -> dict:
     """A shard sample as format.reader.read_frame gives a frame (images, semantic, instance,
     visibility, meta) plus `frame` (frame.json) and, with `targets`, `camera_targets`
-    ({camera: (distance cm, fine class)}). Errors name `<url>:<key>.<member>`."""
+    ({camera: (distance cm, fine class)}, read-only views of the member). `instance=False` leaves
+    the instance labels undecoded, as read_frame's. Errors name `<url>:<key>.<member>`."""
     def member(name):
         if name not in members:
             raise DatasetError(f"{url}: sample {key}: no member '{name}'")
@@ -241,10 +310,13 @@ def decode_sample(url: str, key: str, members: dict, cameras, num_classes: int |
     where = lambda name: Path(f"{url}:{key}.{name}")  # noqa: E731
     out = {"images": {c: decode_png(member(f"cam_{c}.png"), where(f"cam_{c}.png"), "uint8", 3) for c in cameras}}
     names = {Path(n).stem: n for n in LABEL_PNGS}
-    out.update(decode_labels({k: member(n) for k, n in names.items()}, {k: where(n) for k, n in names.items()}, num_classes))
-    out["meta"] = decode_meta(member(META), where(META))
+    if not instance:
+        names.pop("instance")
+    out.update(decode_labels({k: member(n) for k, n in names.items()}, {k: where(n) for k, n in names.items()}, num_classes,
+                             instance=instance))
+    out["meta"] = decode_meta(bytes(member(META)), where(META))
     try:
-        out["frame"] = json.loads(member(FRAME_JSON))
+        out["frame"] = json.loads(bytes(member(FRAME_JSON)))
     except (json.JSONDecodeError, UnicodeDecodeError):
         raise DatasetError(f"{where(FRAME_JSON)}: not valid JSON") from None
     if targets:
