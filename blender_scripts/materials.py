@@ -70,6 +70,7 @@ MATERIAL_CLASSES = {
     "moto_metal": "motorcycle",
     "moto_lamp": "motorcycle",
 }
+LAMP_LENS = (0.6, 0.61, 0.63)  # headlight and reversing-lamp units: chrome and grey plastic under a clear lens
 # the ego car's body: the traffic's materials again, painting the fine class `ego`
 EGO_MATERIALS = {f"ego_{n}": n for n in ("car_paint", "car_glass", "tyre", "rim", "trim", "headlight", "taillight", "grille",
                                                  "plate", "interior", "reverse_lamp")}
@@ -370,14 +371,15 @@ def _vehicle_materials(make, night: bool) -> None:
     make("interior", (0.03, 0.028, 0.027), rough=0.8)
     m, b = make("plate", (0.85, 0.85, 0.8), rough=0.4)
     _plate(m, b)
-    # a clear lens over a chrome reflector: bright only where it mirrors the sky (a white block by
+    # a clear lens over a chrome reflector and a grey housing: it mirrors the sky and, a little,
+    # takes the light that falls on it (a pure mirror is a black hole at night, a white block by
     # day reads as a projector or a spotlight)
-    m, b = make("headlight", (0.35, 0.36, 0.38), rough=0.08, metallic=0.9)
+    m, b = make("headlight", LAMP_LENS, rough=0.12, metallic=0.7)
     b.inputs["Coat Weight"].default_value = 1.0
     if night:
         _emission(b, (1.0, 0.95, 0.85), 40.0)
         _lights_switch(m, b)
-    make("reverse_lamp", (0.35, 0.36, 0.38), rough=0.08, metallic=0.9)[1].inputs["Coat Weight"].default_value = 1.0  # never lit
+    make("reverse_lamp", LAMP_LENS, rough=0.12, metallic=0.7)[1].inputs["Coat Weight"].default_value = 1.0  # never lit
     m, b = make("taillight", (0.45, 0.01, 0.01), rough=0.1)
     b.inputs["Coat Weight"].default_value = 1.0
     if night:
