@@ -31,7 +31,7 @@ from pathlib import Path
 
 import torch
 
-from common.resources import CODE_DIR
+from common.resources import CODE_DIR, checkout  # noqa: F401 (bench.model.checkout: the benches' baseline trees)
 
 ROOT = CODE_DIR  # the checkout (common.resources)
 GOALS = {
@@ -353,17 +353,6 @@ def _in_child(fn: str, *args, root: Path = ROOT, env: dict | None = None) -> dic
         raise RuntimeError(f"bench.model.{fn} failed{' at ' + str(root) if root != ROOT else ''}: "
                            f"{r.stderr.strip().splitlines()[-1] if r.stderr.strip() else r.returncode}")
     return json.loads([ln for ln in r.stdout.splitlines() if ln.startswith("@@")][-1][2:])
-
-
-def checkout(commit: str, dest: Path) -> Path:
-    """The tree of `commit` (of this repository) written to dest (git archive: no worktree to clean up)."""
-    dest.mkdir(parents=True, exist_ok=True)
-    try:
-        archive = subprocess.run(["git", "-C", str(ROOT), "archive", commit], capture_output=True, check=True).stdout
-    except subprocess.CalledProcessError as exc:
-        raise RuntimeError(f"baseline: git archive {commit} failed: {exc.stderr.decode().strip()[:200]}") from None
-    subprocess.run(["tar", "-x", "-C", str(dest)], input=archive, check=True)
-    return dest
 
 
 def versus(children: list[tuple], baseline_root: Path, rounds: int, env: dict | None = None) -> dict:

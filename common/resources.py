@@ -6,6 +6,7 @@
     preset("tiny", "dataset")       configs/dataset/tiny.yaml (a name, or a path as given)
     resolve_input(path, base)       a path a user gave: as given (from the working folder), else
                                     beside `base` (the file that names it), else a shipped file
+    checkout(commit, dest)          the tree of another commit of this checkout (benches' baselines)
 
 In a checkout (or an editable install) the shipped files are the checkout's `configs/` and
 `scenes/`; an installed wheel carries them as package data of `fisheye_bev_data` (pyproject.toml),
@@ -16,6 +17,7 @@ against the working folder.
 from __future__ import annotations
 
 import importlib.util
+import subprocess
 from pathlib import Path
 
 from .errors import ConfigError
@@ -72,3 +74,16 @@ def dataset_config(text) -> Path:
 def presets(kind: str) -> list[str]:
     """The names of the shipped presets of a kind (dataset, train, rigs)."""
     return sorted(f.stem for f in shipped(Path("configs") / kind).glob("*.yaml"))
+
+
+def checkout(commit: str, dest: Path) -> Path:
+    """The tree of `commit` (of this checkout's repository) written to dest (git archive: no
+    worktree to clean up); RuntimeError naming the commit if git cannot."""
+    dest.mkdir(parents=True, exist_ok=True)
+    try:
+        archive = subprocess.run(["git", "-C", str(CODE_DIR), "archive", commit], capture_output=True, check=True).stdout
+    except (OSError, subprocess.CalledProcessError) as exc:
+        err = exc.stderr.decode().strip()[:200] if isinstance(exc, subprocess.CalledProcessError) else str(exc)
+        raise RuntimeError(f"baseline: git archive {commit} failed: {err}") from None
+    subprocess.run(["tar", "-x", "-C", str(dest)], input=archive, check=True)
+    return dest

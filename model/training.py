@@ -206,6 +206,7 @@ def validate(run: Run) -> dict | None:
         for k, v in res.items():
             if not math.isnan(v):
                 run.writer.add_scalar(f"val/{k}", v, run.step)
+        run.writer.flush()  # on disk now (the writer's own flush waits up to 2 min): experiments.tta watches it
         if res["miou"] > run.best:
             run.best = res["miou"]
             save_checkpoint(run.dir.best, checkpoint_state(run))
