@@ -15,11 +15,13 @@ qa.audit.run_audit, qa.html_report.run_report. The commands `generate`, `contact
 `audit` and `report` are thin parsers over the same functions, so running the stages by hand
 gives the same files. Every stage resumes: run it again after an interruption. A render or merge
 that fails, or frames that cannot be fused, stop the pipeline; an audit above its threshold does
-not (the report shows it), but the exit code is then EXIT_PROBLEMS.
+not (the report shows it), but the exit code is then EXIT_PROBLEMS. The stages after rendering run
+in `--workers` processes, by default one per core (locally; they are per-frame numpy work).
 """
 
 from __future__ import annotations
 
+import os
 from contextlib import ExitStack
 from pathlib import Path
 
@@ -66,13 +68,16 @@ def build_dataset(cfg: dict | None, out, backend: str = "local", workers: int | 
     the parts first and writes nothing when they do not fit)."""
     out = Path(out) if parts else output_dir(out)
     labels = cfg["labels"] if cfg else FusionConfig()
+    # the stages after rendering are per-frame numpy work: every core unless told otherwise
+    cores = (workers if backend == "local" else None) or os.cpu_count() or 1
     stages = {
         "render": ((lambda: merge_parts(cfg, out, parts, progress)) if parts
                    else (lambda: render(cfg, out, (0, 1), workers, progress, backend, address, threads or 1))),
         "contact_sheets": lambda: contact_sheets(out),
-        "fuse": lambda: fuse_dataset(out, labels, workers, progress=progress, backend=backend, address=address),
-        "audit": lambda: run_audit(out, labels, progress=progress),
-        "report": lambda: run_report(out, progress=progress),
+        "fuse": lambda: fuse_dataset(out, labels, workers if backend != "local" else cores, progress=progress,
+                                     backend=backend, address=address),
+        "audit": lambda: run_audit(out, labels, progress=progress, workers=cores),
+        "report": lambda: run_report(out, progress=progress, workers=cores),
     }
     result, locked = 0, False
     with ExitStack() as held:

@@ -141,6 +141,9 @@ def test_audit_command_writes_audit_json_and_validate_fails_on_threshold(tmp_pat
     assert 0.0 < a["overall"]["visible_no_los"] < 0.05 and a["overall"]["beyond_kernel"] == 0.0
     assert a["overall"]["unexplained"] == 0.0 and a["metric"] == "unexplained" and a["passed"]
     assert isinstance(f["visible_no_los"], float) and isinstance(f["los_invisible"], float)
+    # in a pool of processes (what the dataset pipeline runs): the same document
+    assert audit.main([str(root), "--no-progress", "--threshold", "0.5", "--workers", "2"]) == 0
+    assert json.loads((root / "audit.json").read_text()) == a
     assert audit.main([str(root), "--no-progress", "--metric", "visible_no_los", "--threshold", "0"]) == 1
     assert validate.main([str(root), "--audit-threshold", "0.5"]) == 0
     assert validate.main([str(root), "--audit-threshold", "0"]) == 1

@@ -34,7 +34,8 @@ from pathlib import Path
 
 import numpy as np
 
-from common.cli import ArgumentParser, print_problems
+from common.backend import make_backend
+from common.cli import ArgumentParser, print_problems, require_positive
 from common.errors import InputError
 from common.files import write_json_atomic
 from common.resources import dataset_config
@@ -225,20 +226,26 @@ def _pooled(parts: list[dict], pixels: bool) -> dict:
     }
 
 
+def _audit_job(frame_dir, shared) -> dict:
+    r = audit_frame(frame_dir, *shared)
+    r.pop("_masks")
+    return r
+
+
 def audit_dataset(root, cfg: FusionConfig | None = None, threshold: float = THRESHOLD, many: float = 2.0,
-                  metric: str = "unexplained", pixels: bool = True, progress: bool = True) -> dict:
-    """Audit every frame of a fused data set; returns the audit.json document."""
+                  metric: str = "unexplained", pixels: bool = True, progress: bool = True,
+                  workers: int | None = None) -> dict:
+    """Audit every frame of a fused data set (in `workers` processes); returns the audit.json document."""
     from tqdm import tqdm
 
     if metric == "unexplained" and not pixels:
         raise InputError("audit: --metric unexplained needs the camera passes (drop --no-pixels)")
     cfg = cfg or FusionConfig()
     idx = DatasetIndex(root)
-    frames = {}
-    for ref in tqdm(idx.all_frames(), desc="audit", unit="frame", disable=not progress):
-        r = audit_frame(ref.dir, cfg, many, pixels)
-        r.pop("_masks")
-        frames[ref.name] = r
+    refs = list(idx.all_frames())
+    results = make_backend("local", workers).map(_audit_job, [str(r.dir) for r in refs], shared=(cfg, many, pixels))
+    frames = {ref.name: r for ref, r in zip(refs, tqdm(results, total=len(refs), desc="audit", unit="frame",
+                                                         disable=not progress))}
     rings = {name: _pooled([f["rings"][name] for f in frames.values()], pixels) for name, _, _ in RINGS}
     overall = _pooled(list(frames.values()), pixels)
     return {"frames": frames, "rings": rings, "overall": overall, "metric": metric, "threshold": float(threshold),
@@ -269,18 +276,20 @@ def main(argv=None) -> int:
     ap.add_argument("--many", type=float, default=2.0, help="'many pixels': expected kernel pixels >= MANY * tau (default 2)")
     ap.add_argument("--config", type=dataset_config, help="dataset config whose labels: section the data set was fused with (tau, kernel)")
     ap.add_argument("--json", help="also write the report here")
+    ap.add_argument("--workers", type=int, default=None, help="processes (default 1)")
     ap.add_argument("--no-progress", action="store_true")
     args = ap.parse_args(argv)
+    require_positive("--workers", args.workers)
     cfg = load_labels(args.config) if args.config else FusionConfig()
     return print_problems(run_audit(args.dataset, cfg, args.threshold, args.many, args.metric, not args.no_pixels,
-                                    progress=not args.no_progress, json_path=args.json))
+                                    progress=not args.no_progress, json_path=args.json, workers=args.workers))
 
 
 def run_audit(root, cfg: FusionConfig, threshold: float = THRESHOLD, many: float = 2.0, metric: str = "unexplained",
-              pixels: bool = True, progress: bool = True, json_path=None) -> list[str]:
+              pixels: bool = True, progress: bool = True, json_path=None, workers: int | None = None) -> list[str]:
     """The audit stage: audit_dataset, written to <root>/audit.json (and `json_path`), its table
     printed; the problems: one line when the overall `metric` is above `threshold`."""
-    r = audit_dataset(root, cfg, threshold, many, metric, pixels, progress=progress)
+    r = audit_dataset(root, cfg, threshold, many, metric, pixels, progress=progress, workers=workers)
     path = write_audit(root, r)
     if json_path:
         write_json_atomic(Path(json_path), r)

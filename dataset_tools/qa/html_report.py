@@ -22,6 +22,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from common.backend import make_backend
 from common.files import clean_stale_temps, write_bytes_atomic, write_figure_atomic, write_json_atomic, write_text_atomic
 
 from ..format.audit_file import audit_metric, read_audit
@@ -425,9 +426,14 @@ def scene_page(scene: str, infos: list[dict], class_names: list[str], audit: dic
 # ---------------------------------------------------------------- the report
 
 
+def _frame_job(ref, shared) -> tuple[dict, bool]:
+    out, cfg, class_names, force = shared
+    return frame_info(ref, out / "frames" / frame_dir_name(ref.scene, ref.frame), cfg, class_names, force)
+
+
 def build_report(root, out=None, frames_per_scene: int | None = None, threshold: float = 0.97,
-                 progress: bool = True, force: bool = False) -> Path:
-    """Writes the report; returns the path of its index.html."""
+                 progress: bool = True, force: bool = False, workers: int | None = None) -> Path:
+    """Writes the report (its frames' pictures in `workers` processes); returns the path of its index.html."""
     from tqdm import tqdm
 
     root = Path(root)
@@ -452,8 +458,8 @@ def build_report(root, out=None, frames_per_scene: int | None = None, threshold:
         write_bytes_atomic(out / asset, (ASSETS / asset).read_bytes())
     scenes: dict[str, list[dict]] = {}
     rebuilt = 0
-    for ref in tqdm(refs, desc="report", unit="frame", disable=not progress):
-        info, new = frame_info(ref, out / "frames" / frame_dir_name(ref.scene, ref.frame), cfg, idx.class_names, force)
+    jobs = make_backend("local", workers).map(_frame_job, refs, shared=(out, cfg, list(idx.class_names), force))
+    for ref, (info, new) in zip(refs, tqdm(jobs, total=len(refs), desc="report", unit="frame", disable=not progress)):
         rebuilt += new
         scenes.setdefault(ref.scene, []).append(info)
     audit = read_audit(root, missing_ok=True)
@@ -507,7 +513,7 @@ def report_size(out: Path) -> int:
 
 
 def main(argv=None) -> int:
-    from common.cli import ArgumentParser, print_problems
+    from common.cli import ArgumentParser, print_problems, require_positive
 
     ap = ArgumentParser(prog="python -m dataset_tools report", description=__doc__.splitlines()[0])
     ap.add_argument("dataset", type=Path)
@@ -515,16 +521,19 @@ def main(argv=None) -> int:
     ap.add_argument("--frames-per-scene", type=int, help="at most this many frames per scene, evenly spread (default all)")
     ap.add_argument("--threshold", type=float, default=0.97, help="street consistency below this is flagged")
     ap.add_argument("--force", action="store_true", help="rebuild every output")
+    ap.add_argument("--workers", type=int, default=None, help="processes drawing the frames' pictures (default 1)")
     ap.add_argument("--no-progress", action="store_true")
     a = ap.parse_args(argv)
-    return print_problems(run_report(a.dataset, a.out, a.frames_per_scene, a.threshold, not a.no_progress, a.force))
+    require_positive("--workers", a.workers)
+    return print_problems(run_report(a.dataset, a.out, a.frames_per_scene, a.threshold, not a.no_progress, a.force,
+                                     a.workers))
 
 
 def run_report(root, out=None, frames_per_scene: int | None = None, threshold: float = 0.97, progress: bool = True,
-               force: bool = False) -> list[str]:
+               force: bool = False, workers: int | None = None) -> list[str]:
     """The report stage: build_report and one line saying where it is; the problems (none: the
     report shows what it finds, it does not judge)."""
     t0 = time.perf_counter()
-    index = build_report(root, out, frames_per_scene, threshold, progress, force)
+    index = build_report(root, out, frames_per_scene, threshold, progress, force, workers)
     print(f"report: {index} ({report_size(index.parent) / 1e6:.1f} MB, {time.perf_counter() - t0:.1f} s)")
     return []
