@@ -94,8 +94,7 @@ def main(argv=None) -> int:
         rig = given or rig_for(frame, None)
         source = f"--rig {a.rig}" if a.rig else str(frame / "meta.json")
         if not described:  # once: what each camera of the rig became
-            for line in rig.describe():
-                print(f"rig {a.rig or frame}: {line}")
+            rig.print_description(a.rig or frame)
             described = True
         rig = in_model_order(rig, model.camera_names, source, cameras)  # before its images are looked for
         paths = image_paths(frame, rig.names)

@@ -31,7 +31,7 @@ from pathlib import Path
 
 import torch
 
-from common.resources import CODE_DIR, checkout  # noqa: F401 (bench.model.checkout: the benches' baseline trees)
+from common.resources import CODE_DIR, checkout
 
 ROOT = CODE_DIR  # the checkout (common.resources)
 GOALS = {

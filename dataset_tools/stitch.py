@@ -252,8 +252,7 @@ def main(argv=None) -> int:
         raise StitchError(f"{folder}: no such folder")
     grid = stitch_grid(a.bound, a.res, a.height)
     rig = rig_for(folder, a.rig)
-    for line in rig.describe():
-        print(f"rig {a.rig or folder}: {line}")
+    rig.print_description(a.rig or folder)
     paths = image_paths(folder, rig.names)
     images = {n: read_image(p) for n, p in paths.items()}
     bev, source = stitch(rig_of_images(rig, images, paths), images, grid, a.height)

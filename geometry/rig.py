@@ -150,6 +150,12 @@ class Rig:
         (with the fit's residual in pixels); what the commands that load a rig print once."""
         return [f"{n}: {self.origins.get(n) or f'{c.camera.model} (exact, given inline)'}" for n, c in self.cameras.items()]
 
+    def print_description(self, source) -> None:
+        """describe()'s lines on stdout, each as `rig <source>: <line>` (`source`: where the rig came
+        from, a file or a data set); what every command that loads a rig prints once."""
+        for line in self.describe():
+            print(f"rig {source}: {line}", flush=True)
+
     def __len__(self):
         return len(self.cameras)
 

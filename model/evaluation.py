@@ -192,8 +192,7 @@ def open_checkpoint(checkpoint, data=None, expect_config: dict | None = None, pr
             raise
         raise EvalError(f"{head}{exc}") from None
     if describe:
-        for line in rig.describe():
-            print(f"rig {checkpoint}: {line}", flush=True)
+        rig.print_description(checkpoint)
     return model, cfg, ckpt, index
 
 

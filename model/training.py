@@ -335,8 +335,7 @@ def train(cfg: dict, out_dir: Path, quiet: bool = False) -> dict:
 
     run = prepare(cfg, out_dir, quiet)
     if run.main and not quiet:  # once: what each camera of the rig the model is built on became
-        for line in run.index.rig.describe():
-            print(f"rig {run.index.root}: {line}", flush=True)
+        run.index.rig.print_description(run.index.root)
     resume(run)
     t = cfg["train"]
     run.ddp = torch.nn.parallel.DistributedDataParallel(run.model) if run.world > 1 else run.model

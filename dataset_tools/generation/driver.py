@@ -192,8 +192,7 @@ def render(cfg: dict, out: Path, shard=(0, 1), workers: int | None = None, progr
     if todo:  # what each camera of the rig became (exact model or a fit, with its residual), once
         from geometry.rig import load_rig
 
-        for line in load_rig(cfg["rig"]).describe():
-            print(f"rig {cfg['rig']}: {line}", flush=True)
+        load_rig(cfg["rig"]).print_description(cfg["rig"])
     pool = make_backend(backend, workers, address)
     workers = max(1, min(pool.slots(threads), len(todo) or 1))
     threads = pool.threads_per_worker(workers, threads)
