@@ -88,8 +88,9 @@ SCHEMA = Section({
         "norm": Str(choices=("group", "batch"), default="group"),
         "dropout": Num(0.0, 0.95, default=0.0),
         # bf16: the trunk and the BEV encoder run under bfloat16 autocast (lift, splat, pooling and
-        # losses stay float32); training and inference alike (docs/model.md)
-        "precision": Str(choices=("fp32", "bf16"), default="fp32"),
+        # losses stay float32); training and inference alike (docs/model.md). auto: bf16 where the
+        # device computes it natively (AVX512-BF16, AMX, CUDA), else fp32; a run records what it chose
+        "precision": Str(choices=("fp32", "bf16", "auto"), default="fp32"),
     }),
     "loss": Section({
         "class_weights": OneOf(Str(choices=("uniform", "paper")), List(Num(0.0, 1e6), length=4),

@@ -13,6 +13,10 @@
   float64 reference than in NCHW: 2.5e-2 against 1e-3 relative) stays NCHW.
 
 `train.threads` (> 0) overrides the count. The GPU path is left as it was.
+
+`model.precision: auto` (the default chain's) is bf16 where the device computes it natively
+(`native_bf16`: a CPU with AVX512-BF16 or AMX-BF16, a CUDA device with bf16) and fp32 elsewhere, where
+bf16 would be emulated, slower than fp32 (docs/model.md).
 """
 
 from __future__ import annotations
@@ -32,6 +36,35 @@ def cores() -> int:
 def compute_threads(processes: int = 1) -> int:
     """Intra-op threads of one of `processes` processes on this machine."""
     return max(1, cores() // max(1, processes))
+
+
+def cpu_flags() -> set[str]:
+    """The CPU's feature flags (/proc/cpuinfo; empty where there is none)."""
+    try:
+        with open("/proc/cpuinfo") as f:
+            for line in f:
+                if line.startswith("flags"):
+                    return set(line.split(":", 1)[1].split())
+    except OSError:
+        pass
+    return set()
+
+
+def native_bf16(device: torch.device) -> str:
+    """Why `device` computes bf16 natively ("AVX512-BF16", "AMX-BF16", "CUDA bf16"), or "" if it does not."""
+    if device.type == "cuda":
+        return "CUDA bf16" if torch.cuda.is_bf16_supported() else ""
+    if device.type != "cpu":
+        return ""
+    flags = cpu_flags()
+    return "AMX-BF16" if "amx_bf16" in flags else "AVX512-BF16" if "avx512_bf16" in flags else ""
+
+
+def resolve_precision(precision: str, device: torch.device) -> str:
+    """model.precision as run on `device`: fp32 or bf16 as given; auto -> bf16 where native_bf16, else fp32."""
+    if precision != "auto":
+        return precision
+    return "bf16" if native_bf16(device) else "fp32"
 
 
 def tune_cpu(cfg: dict, device: torch.device, model: torch.nn.Module | None = None, processes: int = 1) -> None:

@@ -10,6 +10,7 @@ from torch import nn
 from dataset_tools.labels.classes import TRAIN_CLASSES
 
 from .bev_encoder import BevEncoder
+from .cpu import resolve_precision
 from .encoder import ImageEncoder
 from .frustum import Frustum
 from .pooling import make_pooling
@@ -49,7 +50,7 @@ class LSSFisheye(nn.Module):
         self.semantic_head = nn.Conv2d(self.bev.out_channels, num_classes - 1, 1)  # classes 1..K-1; 0 is invalid
         self.occlusion_head = nn.Conv2d(self.bev.out_channels, 1, 1)  # logit of visibility p(o)
         self._index_cache = None
-        self.bf16 = mcfg["precision"] == "bf16"
+        self.bf16 = resolve_precision(mcfg["precision"], torch.device("cpu")) == "bf16"  # train.py resolves auto per device
         # built last, so the other layers draw the same initial weights with or without it
         self.camera_head = nn.Conv2d(c, num_classes - 1, 1) if camera_head else None
 

@@ -32,7 +32,7 @@ from common.schema import deep_merge
 from dataset_tools import DatasetIndex, colorize_train
 
 from .checkpoint import CheckpointError, build_model, load_weights, read_checkpoint, save_checkpoint
-from .cpu import tune_cpu
+from .cpu import native_bf16, resolve_precision, tune_cpu
 from .data import BevDataset, DataError
 from .evaluation import validation_scores
 from .losses import class_weights, total_loss
@@ -138,10 +138,28 @@ def make_optimizer(cfg: dict, model: torch.nn.Module) -> torch.optim.Optimizer:
     return torch.optim.Adam(model.parameters(), lr=t["lr"], weight_decay=t["weight_decay"])
 
 
+def run_precision(cfg: dict, device: torch.device, latest: Path, quiet: bool = True) -> dict:
+    """The config with model.precision `auto` decided (a run records what it trains in, so its
+    checkpoints, validation and eval.py run the same): a resumed run keeps its checkpoint's, a new
+    one takes bf16 where `device` computes it natively, fp32 elsewhere."""
+    if cfg["model"]["precision"] != "auto":
+        return cfg
+    if latest.is_file():
+        chosen, why = read_checkpoint(latest)["config"]["model"]["precision"], f"as {latest} was trained"
+    else:
+        native = native_bf16(device)
+        chosen = resolve_precision("auto", device)
+        why = f"this {device.type.upper()} computes bf16 natively ({native})" if native else f"no native bf16 on this {device.type.upper()}"
+    if not quiet:
+        print(f"model.precision auto: {chosen} ({why})", file=sys.stderr)
+    return {**cfg, "model": {**cfg["model"], "precision": chosen}}
+
+
 def prepare(cfg: dict, out: Path, quiet: bool = False) -> Run:
     """Data sets, model and optimiser of a fresh run (seeded)."""
     t = cfg["train"]
     rank, world, device = setup_distributed(t["device"])
+    cfg = run_precision(cfg, device, RunDir(out).latest, quiet or rank != 0)
     if t["threads"] and device.type != "cpu":
         torch.set_num_threads(t["threads"])
     if t["batch_size"] % world:

@@ -51,3 +51,35 @@ def test_bf16_is_the_fp32_model_rounded(trunk):
 def test_precision_is_checked():
     with pytest.raises(ConfigError, match="model.precision"):
         cfg("fp16")
+
+
+@pytest.mark.parametrize("flags, chosen", [({"avx2", "avx512f"}, "fp32"), ({"avx512f", "avx512_bf16"}, "bf16"),
+                                           ({"amx_tile", "amx_bf16"}, "bf16"), (set(), "fp32")])
+def test_auto_is_bf16_only_where_the_cpu_computes_it(monkeypatch, flags, chosen):
+    import model.cpu as cpu
+
+    monkeypatch.setattr(cpu, "cpu_flags", lambda: flags)
+    assert cpu.resolve_precision("auto", torch.device("cpu")) == chosen
+    assert cpu.resolve_precision("fp32", torch.device("cpu")) == "fp32"  # given: as given, on any CPU
+    assert cpu.resolve_precision("bf16", torch.device("cpu")) == "bf16"
+    assert build_model(cfg("auto"), load_rig("configs/rigs/mixed.yaml")).bf16 == (chosen == "bf16")
+
+
+def test_a_run_records_what_auto_chose_and_a_resume_keeps_it(monkeypatch, tmp_path, capsys):
+    """train.py decides auto once: the config it saves in its checkpoints says fp32 or bf16 (eval
+    runs the same); a resumed run keeps its checkpoint's choice, also on a CPU that would choose
+    otherwise."""
+    import model.cpu as cpu
+    from model.training import run_precision
+
+    latest = tmp_path / "latest.pt"
+    monkeypatch.setattr(cpu, "cpu_flags", lambda: {"avx512_bf16"})
+    c = run_precision(cfg("auto"), torch.device("cpu"), latest, quiet=False)
+    assert c["model"]["precision"] == "bf16"
+    assert "model.precision auto: bf16 (this CPU computes bf16 natively (AVX512-BF16))" in capsys.readouterr().err
+    assert run_precision(cfg("fp32"), torch.device("cpu"), latest) == cfg("fp32")  # only auto is decided
+    torch.save({"config": c, "rig": load_rig("configs/rigs/mixed.yaml").to_dict(), "model": {}}, latest)
+    monkeypatch.setattr(cpu, "cpu_flags", lambda: {"avx2"})
+    assert run_precision(cfg("auto"), torch.device("cpu"), latest)["model"]["precision"] == "bf16"
+    latest.unlink()
+    assert run_precision(cfg("auto"), torch.device("cpu"), latest)["model"]["precision"] == "fp32"
