@@ -232,6 +232,36 @@ def rear_lamps(m: MeshData, xr, hw, belt, clear, low=False, tall=False, ceiling=
     _box_at(m, xr, xr + 0.025, -0.26, 0.26, clear + 0.2, clear + 0.31, "plate")
 
 
+def car_front(m: MeshData, xf, hw, belt, clear):
+    """A car's face at x = xf, as real ones are laid out: headlights at the corners under the
+    bonnet, a grille between them in a chrome surround with bars and a badge, the plate on a
+    body-coloured bumper, a wide dark air intake under it and a dark lip at the bottom. (One dark
+    block from the bumper to the bonnet read as a face or an appliance to the classifier.)"""
+    lamp = (belt - 0.14, belt - 0.03)
+    for sd in (-1, 1):
+        y0, y1 = sorted((sd * 0.46 * hw, sd * 0.9 * hw))
+        _box_at(m, xf - 0.035, xf, y0, y1, *lamp, "headlight")
+    plate = (clear + 0.17, clear + 0.28)
+    g0, g1 = min(plate[1] + 0.05, belt - 0.14), belt - 0.05  # taller on SUVs and pickups
+    gy = 0.4 * hw
+    _box_at(m, xf - 0.03, xf - 0.005, -gy, gy, g0, g1, "grille")
+    t = 0.014  # the chrome surround and bars
+    for z0, z1 in ((g1 - t, g1), (g0, g0 + t)):
+        _box_at(m, xf - 0.03, xf, -gy - t, gy + t, z0, z1, "rim")
+    for sd in (-1, 1):
+        y0, y1 = sorted((sd * gy, sd * (gy + t)))
+        _box_at(m, xf - 0.03, xf, y0, y1, g0, g1, "rim")
+    bars = max(1, int((g1 - g0) / 0.06))
+    for k in range(1, bars + 1):
+        z = g0 + (g1 - g0) * k / (bars + 1)
+        _box_at(m, xf - 0.02, xf - 0.002, -gy, gy, z - 0.005, z + 0.005, "rim")
+    zc = (g0 + g1) / 2
+    _box_at(m, xf - 0.03, xf, -0.04, 0.04, zc - 0.03, zc + 0.03, "rim")  # the badge
+    _box_at(m, xf - 0.025, xf, -0.26, 0.26, *plate, "plate")
+    _box_at(m, xf - 0.03, xf - 0.004, -0.6 * hw, 0.6 * hw, clear + 0.05, plate[0] - 0.02, "grille")  # lower intake
+    _box_at(m, xf - 0.12, xf - 0.004, -0.92 * hw, 0.92 * hw, clear + 0.0, clear + 0.05, "trim")  # the lip
+
+
 def body(m: MeshData, style, size, wheel_r, axles, x0=None, rear_details=True):
     """A lofted body of `style` filling `size` (length, width, height), its rear at x0 (default:
     centred); details (lamps, grille, plates, mirrors, seams, interior) on it."""
@@ -255,15 +285,16 @@ def body(m: MeshData, style, size, wheel_r, axles, x0=None, rear_details=True):
     bf, br = float(belt[-1]), float(belt[0])
     hf, hr = float(hw[-1]), float(hw[0])
     # lamps, grille and plates on the front and rear faces (1-2 cm proud, inside the box)
-    big = style in ("bus", "truck_cab", "van")
-    lamp_z = (clear + 0.25, clear + 0.42) if style == "bus" else (bf - (0.2 if big else 0.13), bf - 0.03)
-    for sd in (-1, 1):
-        y0, y1 = sorted((sd * 0.42 * hf, sd * 0.8 * hf))
-        _box_at(m, xf - 0.035, xf, y0, y1, *lamp_z, "headlight")
-    grille_top = lamp_z[1] - 0.02 if big else bf - 0.1
-    _box_at(m, xf - 0.03, xf - 0.005, -0.38 * hf, 0.38 * hf, clear + 0.2, max(clear + 0.3, grille_top), "grille")
-    _box_at(m, xf - 0.12, xf - 0.004, -0.9 * hf, 0.9 * hf, clear + 0.02, clear + 0.16, "trim")  # lower bumper
-    _box_at(m, xf - 0.025, xf, -0.26, 0.26, clear + 0.05, clear + 0.16, "plate")
+    if style in ("bus", "truck_cab", "van"):
+        lamp_z = (clear + 0.25, clear + 0.42) if style == "bus" else (bf - 0.2, bf - 0.03)
+        for sd in (-1, 1):
+            y0, y1 = sorted((sd * 0.42 * hf, sd * 0.8 * hf))
+            _box_at(m, xf - 0.035, xf, y0, y1, *lamp_z, "headlight")
+        _box_at(m, xf - 0.03, xf - 0.005, -0.38 * hf, 0.38 * hf, clear + 0.2, max(clear + 0.3, lamp_z[1] - 0.02), "grille")
+        _box_at(m, xf - 0.12, xf - 0.004, -0.9 * hf, 0.9 * hf, clear + 0.02, clear + 0.16, "trim")  # lower bumper
+        _box_at(m, xf - 0.025, xf, -0.26, 0.26, clear + 0.05, clear + 0.16, "plate")
+    else:
+        car_front(m, xf, hf, bf, clear)
     if rear_details:
         rear_lamps(m, xr, hr, br, clear, tall=style in ("van", "suv", "pickup", "wagon"), ceiling=float(top[0]))
     # mirrors at the foot of the windscreen, outside the doors (the body is narrower than the box)

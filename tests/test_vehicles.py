@@ -64,3 +64,27 @@ def test_ego_body_keeps_the_smooth_shading_and_its_own_materials():
                                               np.random.default_rng(1))
     assert mesh.smooth_angle is not None
     assert all(n.startswith("ego_") and MATERIAL_CLASSES[n] == "ego" for n in mesh.mats)
+
+
+@pytest.mark.parametrize("style", ["sedan", "hatchback", "wagon", "suv", "pickup"])
+def test_a_car_front_is_laid_out_as_real_ones(style):
+    """Headlights at the corners under the bonnet, the grille between them (not a dark block from the
+    bumper up), the plate under the grille and a dark intake under the plate."""
+    kind = "car" if style in KIND_STYLES["car"] else "suv"
+    l, w, h = assets.VEHICLE_SIZES[kind][0]
+    m = assets.vehicle_mesh(kind, (l, w, h), np.random.default_rng(0), style)
+    v = m.vertices
+    parts = {}
+    for f, n in zip(m.faces, m.mats):
+        p = v[list(f)]
+        if p[:, 0].min() > l / 2 - 0.2:  # on the front face
+            parts.setdefault(n, []).append(p)
+    span = {n: (np.concatenate(ps).min(0), np.concatenate(ps).max(0)) for n, ps in parts.items()}
+    lamps = np.concatenate(parts["headlight"])
+    inner = np.abs(lamps[:, 1]).min()
+    grille = np.concatenate([p for p in parts["grille"] if p[:, 2].min() > span["plate"][1][2] - 1e-6])
+    intake = np.concatenate([p for p in parts["grille"] if p[:, 2].max() < span["plate"][0][2] + 1e-6])
+    assert np.abs(grille[:, 1]).max() < inner, "the grille reaches past the headlights"
+    assert grille[:, 2].max() > lamps[:, 2].min(), "the grille is not beside the headlights"
+    assert grille[:, 2].max() - grille[:, 2].min() < 0.3 * h
+    assert intake[:, 2].max() < span["plate"][0][2] and len(parts["rim"]) >= 5  # surround, bars and badge
