@@ -132,6 +132,8 @@ class MeshData:
         v = np.column_stack([c * v[:, 0] - s * v[:, 1], s * v[:, 0] + c * v[:, 1], v[:, 2]]) + center
         faces = [(i, (i + 1) % n, n + (i + 1) % n, n + i) for i in range(n)]
         faces += [tuple(range(n - 1, -1, -1)), tuple(range(n, 2 * n))]
+        if axis != "z":  # (x, z) for (x, y) mirrors the ring: turn the faces back outward
+            faces = [f[::-1] for f in faces]
         return self.add(v, faces, mat)
 
     def tube(self, p0, p1, r0, r1=None, n=6, mat="default", caps=True):

@@ -161,7 +161,7 @@ def _loft(m: MeshData, pts, mats, cap_mat="car_paint"):
     for i in range(S - 1):
         for j in range(RING):
             a, b = i * RING + j, i * RING + (j + 1) % RING
-            faces.append((a, b, b + RING, a + RING))
+            faces.append((a, a + RING, b + RING, b))  # outward: Cycles' Fresnel of a back face is total reflection
             fm.append(mats[i, j])
     groups: dict = {}
     for f, mat in zip(faces, fm):
@@ -171,8 +171,8 @@ def _loft(m: MeshData, pts, mats, cap_mat="car_paint"):
     off = m._n - len(verts)
     for mat, fs in groups.items():
         m.add(np.zeros((0, 3)), [tuple(off + i - m._n for i in f) for f in fs], mat)
-    m.add(np.zeros((0, 3)), [tuple(off + i - m._n for i in range(RING - 1, -1, -1))], cap_mat)  # rear cap
-    m.add(np.zeros((0, 3)), [tuple(off + (S - 1) * RING + i - m._n for i in range(RING))], cap_mat)  # front cap
+    m.add(np.zeros((0, 3)), [tuple(off + i - m._n for i in range(RING))], cap_mat)  # rear cap
+    m.add(np.zeros((0, 3)), [tuple(off + (S - 1) * RING + i - m._n for i in range(RING - 1, -1, -1))], cap_mat)  # front cap
 
 
 def wheel(m: MeshData, x, y_outer, r, width, n=20, spokes=5, side=1):
@@ -191,23 +191,26 @@ def wheel(m: MeshData, x, y_outer, r, width, n=20, spokes=5, side=1):
     P = len(prof)
     faces = [(k * n + i, k * n + (i + 1) % n, (k + 1) * n + (i + 1) % n, (k + 1) * n + i)
              for k in range(P - 1) for i in range(n)]
-    m.add(v, faces, "tyre")
+    # every face outward (Cycles' Fresnel of a back face is total reflection): the profile runs
+    # the other way round on the right side, the rim's discs face -y unless turned
+    m.add(v, faces if side > 0 else [f[::-1] for f in faces], "tyre")
+    out = (lambda fs: [f[::-1] for f in fs]) if side > 0 else (lambda fs: fs)
     # rim: a lip ring, a dark recessed well, spokes from a hub to the lip
     y_rim = y_outer - side * 0.015
     lip = np.column_stack([x + rr * ca, np.full(n, y_outer), r + rr * sa])
     lip_in = np.column_stack([x + 0.88 * rr * ca, np.full(n, y_rim), r + 0.88 * rr * sa])
-    m.add(np.vstack([lip, lip_in]), [(i, (i + 1) % n, n + (i + 1) % n, n + i) for i in range(n)], "rim")
+    m.add(np.vstack([lip, lip_in]), out([(i, (i + 1) % n, n + (i + 1) % n, n + i) for i in range(n)]), "rim")
     well = np.column_stack([x + 0.88 * rr * ca, np.full(n, y_outer - side * 0.07), r + 0.88 * rr * sa])
-    m.add(well, [tuple(range(n))], "trim")
+    m.add(well, out([tuple(range(n))]), "trim")
     hub = np.column_stack([x + 0.2 * rr * ca[::2], np.full(n // 2, y_rim), r + 0.2 * rr * sa[::2]])
-    m.add(hub, [tuple(range(n // 2))], "rim")
+    m.add(hub, out([tuple(range(n // 2))]), "rim")
     for k in range(spokes):
         t = 2 * math.pi * k / spokes + 0.3
         c, s_ = math.cos(t), math.sin(t)
         half = 0.07 * rr
         p = [(0.18 * rr, -half), (0.9 * rr, -half * 1.5), (0.9 * rr, half * 1.5), (0.18 * rr, half)]
         q = [(x + d * c - o * s_, y_rim + side * 0.002, r + d * s_ + o * c) for d, o in p]
-        m.add(q, [(0, 1, 2, 3)], "rim")
+        m.add(q, out([(0, 1, 2, 3)]), "rim")
 
 
 def _box_at(m, x0, x1, y0, y1, z0, z1, mat):

@@ -88,3 +88,48 @@ def test_a_car_front_is_laid_out_as_real_ones(style):
     assert grille[:, 2].max() > lamps[:, 2].min(), "the grille is not beside the headlights"
     assert grille[:, 2].max() - grille[:, 2].min() < 0.3 * h
     assert intake[:, 2].max() < span["plate"][0][2] and len(parts["rim"]) >= 5  # surround, bars and badge
+
+
+def _signed_volume(v, faces) -> float:
+    """Positive where the faces wind outward (counter-clockwise seen from outside)."""
+    t = 0.0
+    for f in faces:
+        p = v[list(f)]
+        for k in range(1, len(f) - 1):
+            t += float(np.dot(p[0], np.cross(p[k], p[k + 1]))) / 6
+    return t
+
+
+@pytest.mark.parametrize("kind,style", STYLES)
+def test_every_face_of_a_vehicle_faces_outward(kind, style):
+    """Cycles shades a back face as the inside of the material: glass seen from behind reflects
+    totally past the critical angle (a mirror instead of a window), so the body, its caps and the
+    wheels on both sides must wind outward."""
+    from blender_scripts.meshes import MeshData
+    from blender_scripts.vehicles import wheel
+
+    m = assets.vehicle_mesh(kind, assets.VEHICLE_SIZES[kind][0], np.random.default_rng(0), style)
+    v = m.vertices
+    body = [f for f, n in zip(m.faces, m.mats) if n in ("car_paint", "car_glass", "cargo")]
+    assert _signed_volume(v, body) > 0.3 * np.prod(assets.VEHICLE_SIZES[kind][0])
+    for side in (1, -1):
+        w = MeshData()
+        wheel(w, 0.0, side * 0.9, 0.33, 0.2, side=side)
+        wv = w.vertices
+        for f, n in zip(w.faces, w.mats):
+            p = wv[list(f)]
+            nrm = sum(np.cross(p[k], p[(k + 1) % len(f)]) for k in range(len(f)))
+            radial = np.array([p[:, 0].mean(), 0.0, p[:, 2].mean() - 0.33])
+            if n == "tyre" and np.linalg.norm(radial) > 0.32:  # the tread
+                assert np.dot(nrm, radial) > 0, f"side {side}: the tread faces the axle"
+            if n in ("rim", "trim") and abs(nrm[1]) > 0.8 * np.linalg.norm(nrm):
+                assert np.sign(nrm[1]) == side, f"side {side}: the rim faces the car"
+
+
+@pytest.mark.parametrize("axis", ["z", "y"])
+def test_primitives_face_outward(axis):
+    from blender_scripts.meshes import MeshData
+
+    for m in (MeshData().cylinder((1, 2, 0), 0.5, 2, axis=axis), MeshData().box((1, 2, 0), (2, 1, 1)),
+              MeshData().tube((0, 0, 0), (0, 0, 2), 0.5), MeshData().ellipsoid((0, 0, 1), (1, 1, 1))):
+        assert _signed_volume(m.vertices, m.faces) > 0
