@@ -67,6 +67,9 @@ SCHEMA = Section({
     }),
     "model": Section({
         "trunk": Str(choices=("scratch", "efficientnet_lite0"), default="scratch"),  # model.encoder / model.efficientnet
+        # the pretrained trunk's first levels kept as pretrained (no gradient, BatchNorm at ImageNet's
+        # statistics): 1 the stem and the blocks at stride 2, 2 through stride 4, ... (model.efficientnet); 0 none
+        "trunk_frozen": Num(0, 5, integer=True, default=0),
         "encoder": Section({
             "widths": List(Num(1, 4096, integer=True), max_length=8, default=[16, 32, 64, 128]),
             "blocks": List(Num(1, 64, integer=True), max_length=8, default=[1, 1, 1]),
@@ -133,6 +136,11 @@ def _semantic_checks(cfg: dict, source: str):
     s = m["stride"]
     if s & (s - 1) or s > 2 ** len(m["encoder"]["widths"]):
         raise ConfigError(f"{source}: model.stride: must be a power of 2 up to {2 ** len(m['encoder']['widths'])}")
+    if m["trunk_frozen"] and m["trunk"] != "efficientnet_lite0":
+        raise ConfigError(f"{source}: model.trunk_frozen: only the pretrained trunk (model.trunk: efficientnet_lite0) is kept frozen")
+    if m["trunk_frozen"] >= (m["stride"].bit_length() - 1 if m["trunk"] == "efficientnet_lite0" else 99):
+        raise ConfigError(f"{source}: model.trunk_frozen: {m['trunk_frozen']} levels would freeze the features at the stride "
+                          f"{m['stride']} the lift reads; at most {m['stride'].bit_length() - 2}")
     d = m["depth"]
     if not d["min"] < d["max"]:
         raise ConfigError(f"{source}: model.depth: need min < max")

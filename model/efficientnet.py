@@ -20,6 +20,7 @@ D depth logits and C context channels.
 
 from __future__ import annotations
 
+import contextlib
 import math
 
 import torch
@@ -82,7 +83,7 @@ class EfficientNetLite0Encoder(nn.Module):
     keep_contiguous = True  # model.cpu leaves it NCHW: its NHWC backward rounds 20x worse
 
     def __init__(self, stride: int = 8, depth_bins: int = 32, context_channels: int = 32, width: int = 128,
-                 norm: str = "group", dropout: float = 0.0):
+                 norm: str = "group", dropout: float = 0.0, frozen: int = 0):
         super().__init__()
         levels = int(round(math.log2(stride)))
         if 2**levels != stride or not 1 <= levels <= 5:
@@ -103,6 +104,14 @@ class EfficientNetLite0Encoder(nn.Module):
         self.fuse = Up(chans[levels] + chans[5], width, norm) if levels < 5 else None
         self.dropout = nn.Dropout2d(dropout) if dropout > 0 else nn.Identity()
         self.head = nn.Conv2d(width if self.fuse else chans[5], depth_bins + context_channels, 1)
+        # frozen levels: the stem (level 1) and the blocks through level `frozen` keep their pretrained
+        # weights and BatchNorm statistics, and run without autograd (no backward through them)
+        if frozen >= levels:
+            raise ValueError(f"encoder: {frozen} frozen levels reach the stride-{stride} features")
+        self.frozen_blocks = ends[frozen] + 1 if frozen else 0
+        self.frozen = frozen
+        for mod in self._frozen_modules():
+            mod.requires_grad_(False)
         self.register_buffer("mean", torch.tensor(IMAGENET_MEAN).view(1, 3, 1, 1), persistent=False)
         self.register_buffer("std", torch.tensor(IMAGENET_STD).view(1, 3, 1, 1), persistent=False)
 
@@ -110,13 +119,26 @@ class EfficientNetLite0Encoder(nn.Module):
         """(B, 3, H, W) in [0, 1] -> ImageNet-normalised."""
         return (images - self.mean) / self.std
 
+    def _frozen_modules(self) -> list:
+        return ([self.stem] if self.frozen else []) + list(self.blocks[: self.frozen_blocks])
+
+    def train(self, mode: bool = True):
+        super().train(mode)
+        for mod in self._frozen_modules():  # BatchNorm keeps ImageNet's statistics
+            mod.eval()
+        return self
+
     def forward(self, images):
         if images.shape[-1] % self.total_stride or images.shape[-2] % self.total_stride:
             raise ValueError(f"encoder: image size {tuple(images.shape[-2:])} must be a multiple of {self.total_stride}")
-        x = self.stem(images)
+        with torch.no_grad() if self.frozen else contextlib.nullcontext():
+            x = self.stem(images)
+            for b in self.blocks[: self.frozen_blocks]:
+                x = b(x)
         skip = x if self.level == 1 else None
         for i, b in enumerate(self.blocks):
-            x = b(x)
+            if i >= self.frozen_blocks:
+                x = b(x)
             if self.level > 1 and i == self.ends[self.level]:
                 skip = x
         x = x if self.fuse is None else self.fuse(x, skip)

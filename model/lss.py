@@ -25,7 +25,8 @@ def make_encoder(mcfg: dict) -> nn.Module:
     if mcfg["trunk"] == "efficientnet_lite0":
         from .efficientnet import EfficientNetLite0Encoder
 
-        return EfficientNetLite0Encoder(mcfg["stride"], d["bins"], c, mcfg["encoder"]["widths"][-1], mcfg["norm"], mcfg["dropout"])
+        return EfficientNetLite0Encoder(mcfg["stride"], d["bins"], c, mcfg["encoder"]["widths"][-1], mcfg["norm"], mcfg["dropout"],
+                                        frozen=mcfg["trunk_frozen"])
     return ImageEncoder(mcfg["encoder"]["widths"], mcfg["encoder"]["blocks"], mcfg["stride"], d["bins"], c, mcfg["norm"], mcfg["dropout"])
 
 

@@ -1,0 +1,50 @@
+"""model.trunk_frozen: the pretrained trunk's first levels stay as loaded (no gradient, BatchNorm at
+ImageNet's statistics) while the rest trains; the same outputs as the unfrozen model in eval."""
+
+import pytest
+import torch
+
+from common.errors import ConfigError
+from geometry.rig import load_rig
+from model import build_model
+from model.config import validate
+
+
+def cfg(frozen: int, trunk: str = "efficientnet_lite0", stride: int = 8) -> dict:
+    return validate({"data": {"input_size": [64, 64], "grid": {"bound": 12.0, "res": 0.5}, "num_workers": 0},
+                     "model": {"context_channels": 8, "depth": {"bins": 8}, "bev_encoder": {"widths": [8, 16, 32]},
+                               "trunk": trunk, "trunk_frozen": frozen, "stride": stride}})
+
+
+def test_frozen_levels_get_no_gradient_and_keep_their_statistics():
+    rig = load_rig("configs/rigs/default.yaml")
+    torch.manual_seed(0)
+    free = build_model(cfg(0), rig)
+    torch.manual_seed(0)
+    frozen = build_model(cfg(2), rig)
+    enc = frozen.encoder
+    assert enc.frozen_blocks == enc.ends[2] + 1 > 0
+    x = torch.rand(2, len(rig), 3, 64, 64)
+    free.eval(), frozen.eval()
+    with torch.no_grad():  # the same network: freezing changes training, not the function
+        a, b = free(x), frozen(x)
+    assert torch.equal(a["semantic"], b["semantic"])
+    frozen.train()
+    stats = [m.running_mean.clone() for m in enc.stem.modules() if isinstance(m, torch.nn.BatchNorm2d)]
+    out = frozen(x)
+    sum(v.float().square().mean() for v in out.values()).backward()
+    for name, p in enc.named_parameters():
+        first = name.startswith("stem.") or (name.startswith("blocks.") and int(name.split(".")[1]) < enc.frozen_blocks)
+        assert (p.grad is None) == first, name  # frozen: no gradient; the rest trains
+    after = [m.running_mean for m in enc.stem.modules() if isinstance(m, torch.nn.BatchNorm2d)]
+    assert all(torch.equal(u, v) for u, v in zip(stats, after)), "a frozen BatchNorm moved its statistics"
+    assert not enc.stem.training and enc.blocks[enc.frozen_blocks].training
+
+
+@pytest.mark.parametrize("frozen, trunk, stride, msg", [
+    (1, "scratch", 8, "only the pretrained trunk"),
+    (3, "efficientnet_lite0", 8, "at most 2"),
+])
+def test_trunk_frozen_is_checked(frozen, trunk, stride, msg):
+    with pytest.raises(ConfigError, match=msg):
+        cfg(frozen, trunk, stride)
