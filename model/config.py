@@ -87,6 +87,9 @@ SCHEMA = Section({
         "bev_encoder": Section({
             "widths": List(Num(1, 4096, integer=True), length=3, default=[32, 64, 128]),
             "blocks": List(Num(1, 64, integer=True), length=2, default=[1, 1]),
+            # depthwise-separable 3x3 convolutions in the decoder (1/2 and full resolution): a
+            # fifth of the encoder's work (model.bev_encoder)
+            "separable": Bool(default=False),
         }),
         "norm": Str(choices=("group", "batch"), default="group"),
         "dropout": Num(0.0, 0.95, default=0.0),

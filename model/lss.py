@@ -47,7 +47,8 @@ class LSSFisheye(nn.Module):
         grid = self.grid
         cover = splat_count(splat_index(pc[None], grid.rows * grid.cols)).view(len(pc), *grid.shape)
         self.pool = make_pooling(self.pooling_kind, len(pc), c, grid.shape, cover)
-        self.bev = BevEncoder(c, mcfg["bev_encoder"]["widths"], mcfg["bev_encoder"]["blocks"], mcfg["norm"], mcfg["dropout"])
+        b = mcfg["bev_encoder"]
+        self.bev = BevEncoder(c, b["widths"], b["blocks"], mcfg["norm"], mcfg["dropout"], b["separable"])
         self.semantic_head = nn.Conv2d(self.bev.out_channels, num_classes - 1, 1)  # classes 1..K-1; 0 is invalid
         self.occlusion_head = nn.Conv2d(self.bev.out_channels, 1, 1)  # logit of visibility p(o)
         self._index_cache = None

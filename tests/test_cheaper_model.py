@@ -1,5 +1,6 @@
-"""model.trunk_frozen: the pretrained trunk's first levels stay as loaded (no gradient, BatchNorm at
-ImageNet's statistics) while the rest trains; the same outputs as the unfrozen model in eval."""
+"""Levers for less work per step (issue 33), each off by default: model.trunk_frozen (the pretrained
+trunk's first levels stay as loaded: no gradient, BatchNorm at ImageNet's statistics; the same
+function in eval) and model.bev_encoder.separable (depthwise-separable decoder convolutions)."""
 
 import pytest
 import torch
@@ -48,3 +49,22 @@ def test_frozen_levels_get_no_gradient_and_keep_their_statistics():
 def test_trunk_frozen_is_checked(frozen, trunk, stride, msg):
     with pytest.raises(ConfigError, match=msg):
         cfg(frozen, trunk, stride)
+
+
+def test_a_separable_bev_decoder_does_a_fraction_of_the_work():
+    from torch.utils.flop_counter import FlopCounterMode
+
+    from model.bev_encoder import BevEncoder
+
+    x = torch.rand(1, 32, 200, 200)
+    flops = {}
+    for sep in (False, True):
+        enc = BevEncoder(32, (32, 64, 128), (1, 1), separable=sep)
+        with FlopCounterMode(display=False) as fc, torch.no_grad():
+            y = enc(x)
+        assert y.shape == (1, 32, 200, 200)
+        flops[sep] = fc.get_total_flops()
+    assert flops[True] < 0.4 * flops[False]
+    c = validate({"model": {"bev_encoder": {"separable": True}}})
+    assert c["model"]["bev_encoder"]["separable"] is True
+    assert validate({})["model"]["bev_encoder"]["separable"] is False  # the default is today's encoder
