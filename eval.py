@@ -41,6 +41,8 @@ def main(argv=None) -> int:
     p.add_argument("--pictures", type=int, default=4, help="frames per split drawn as pictures (default 4)")
     p.add_argument("--save-predictions", action="store_true", help="write every frame's prediction as predictions/<scene>_<frame>.npz")
     p.add_argument("--threads", type=int, default=0, help="torch threads (default: torch's choice)")
+    p.add_argument("--device", default="auto", choices=("auto", "cpu", "cuda"),
+                   help="where the model runs (auto: the GPU when there is one)")
     p.add_argument("--precision", nargs="+", choices=("fp32", "bf16"), metavar="P",
                    help="run the model in fp32 or bf16 (default: as trained); with --compare, A's then B's (one value: both)")
     a = p.parse_args(argv)
@@ -56,12 +58,14 @@ def main(argv=None) -> int:
     if a.compare:
         if a.config or a.save_predictions:
             raise EvalError("--compare: takes neither --config nor --save-predictions")
-        table, out = compare_checkpoints(*a.compare, a.split, a.out, a.data, precision=(precision[0], precision[-1]))
+        table, out = compare_checkpoints(*a.compare, a.split, a.out, a.data, precision=(precision[0], precision[-1]),
+                                         device=a.device)
         print(table)
         print(f"written {out}/{out.comparison.name} and {out.comparison_table.name}")
         return 0
     expect = load_config(preset(a.config, "train")) if a.config else None
-    table, out = evaluate_checkpoint(a.checkpoint, a.split, a.out, a.data, expect, a.pictures, a.save_predictions, precision[0])
+    table, out = evaluate_checkpoint(a.checkpoint, a.split, a.out, a.data, expect, a.pictures, a.save_predictions, precision[0],
+                                     a.device)
     print(table)
     print(f"written {out}/{out.metrics.name}, {out.table.name}, {EvalDir.CONFUSION_GLOB} and {EvalDir.FRAME_GLOB}")
     return 0

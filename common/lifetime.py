@@ -2,7 +2,7 @@
 
     Popen(..., preexec_fn=DieWithParent())                  # a worker process (run before exec)
     ProcessPoolExecutor(..., initializer=...)               # common.backend's local pool calls it
-    DataLoader(..., worker_init_fn=DieWithParent())         # torch data loader workers
+    DataLoader(..., worker_init_fn=LoaderWorker())          # torch data loader workers
 
 On Linux the child asks the kernel for SIGKILL when its parent dies (prctl PR_SET_PDEATHSIG), then
 checks that the parent it was started by is still its parent (it may have died before the call).
@@ -70,6 +70,18 @@ class DieWithParent:
 
     def __call__(self, *_args) -> None:
         die_with_parent(self.parent)
+
+
+class LoaderWorker(DieWithParent):
+    """DieWithParent for torch DataLoader workers, which also leave SIGINT and SIGTERM to their
+    parent: a signal to the whole process group (Ctrl-C, `timeout`, a scheduler's stop) then reaches
+    the training loop's graceful stop alone, which finishes the step and saves, instead of racing a
+    worker's death ("DataLoader worker killed by signal: Terminated"). The parent ends its workers."""
+
+    def __call__(self, *_args) -> None:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)
+        super().__call__()
 
 
 OWNER_ENV = "FISHEYE_BEV_OWNER"  # marks every process a command's local Ray instance starts

@@ -21,14 +21,14 @@ from torch.utils.data import DataLoader, Subset
 
 from common.errors import InputError
 from common.files import output_dir, write_json_atomic, write_text_atomic
-from common.lifetime import DieWithParent
+from common.lifetime import LoaderWorker
 from dataset_tools import SPLITS, DatasetIndex, read_frame
 
 from .bootstrap import paired_bootstrap, per_scene_arrays, scene_bootstrap
 from .checkpoint import in_precision, load_checkpoint
 from .data import BevDataset
 from .eval_report import comparison_table, confusion_picture, frame_picture, markdown_table
-from .inference import predict, to_device, write_prediction
+from .inference import pick_device, predict, to_device, write_prediction
 from .metrics import BevMetrics, confusion, occlusion_confusion
 from .run_dir import EvalDir, RunDir, checkpoint_path, frame_name
 
@@ -49,8 +49,10 @@ def score(model, ds, on_batch, frames=None, batch_size: int = 1, num_workers: in
     training = model.training
     model.eval()
     indices = list(range(len(ds)) if frames is None else frames)[rank::world]
+    # every worker builds a part of a batch (a worker builds whole batches, and frames are scored alone)
+    batch_size = -(-batch_size // max(1, num_workers))
     loader = DataLoader(Subset(ds, indices), batch_size=batch_size, num_workers=num_workers, generator=torch.Generator(),
-                        worker_init_fn=DieWithParent())
+                        worker_init_fn=LoaderWorker())
     if desc is not None:
         from tqdm import tqdm
 
@@ -61,6 +63,8 @@ def score(model, ds, on_batch, frames=None, batch_size: int = 1, num_workers: in
             batch = to_device(batch, device)
         t0 = time.perf_counter()
         pred = predict(model, batch)
+        if device is not None and torch.device(device).type == "cuda":
+            torch.cuda.synchronize(device)  # the kernels run asynchronously: time them to the end
         seconds += time.perf_counter() - t0
         on_batch(pred, batch)
     model.train(training)
@@ -153,20 +157,23 @@ def evaluate_split(model, cfg, index: DatasetIndex, split: str, out: EvalDir, pi
                 frame_picture(out.frame(split, name), images, semantic.numpy(), visibility.numpy(), classes.numpy(),
                               torch.sigmoid(occ).numpy(), ds.class_names, f"{split}: {ref.scene} frame {ref.frame} ({ref.weather})")
 
-    scores.seconds = score(model, ds, on_batch, desc=f"eval {split}")
+    device = next(model.parameters()).device  # open_checkpoint's; on a GPU the loader's workers feed it
+    workers = cfg["data"]["num_workers"] if device.type == "cuda" else 0
+    scores.seconds = score(model, ds, on_batch, num_workers=workers, device=device, desc=f"eval {split}")
     res = scores.result()
     confusion_picture(out.confusion(split), res["confusion"], ds.class_names, f"{split}: rows normalised, visible cells")
     return res
 
 
 def open_checkpoint(checkpoint, data=None, expect_config: dict | None = None, precision: str | None = None, label: str = "",
-                    describe: bool = False):
+                    describe: bool = False, device: str = "cpu"):
     """-> (model in eval mode, config, checkpoint dict, DatasetIndex) for scoring a checkpoint on
     its data set (or on `data`, a data set root with the same rig and classes: the same cameras,
     calibrations up to a resize, and poses, not only the same names); `precision` (fp32 | bf16) runs
     it in another precision than it was trained in (model.precision). `label` ("--compare A") starts
     every error line, so that it says which checkpoint it is about. `describe`: print once what each
-    camera of the checkpoint's rig became (as every command that loads a rig does)."""
+    camera of the checkpoint's rig became (as every command that loads a rig does). `device`: where
+    the model runs (auto | cpu | cuda, model.inference.pick_device)."""
     from common.errors import InputError
     from geometry.rig import rig_difference, rig_from_dict
 
@@ -175,7 +182,7 @@ def open_checkpoint(checkpoint, data=None, expect_config: dict | None = None, pr
         if not Path(checkpoint).is_file():
             raise EvalError(f"{checkpoint}: no such checkpoint")
         model, cfg, ckpt = load_checkpoint(checkpoint, expect_config=expect_config)
-        model.eval()
+        model.eval().to(pick_device(device))
         if precision:
             cfg = in_precision(model, cfg, precision)
         if data:
@@ -203,12 +210,13 @@ def evaluate_splits(model, cfg, index: DatasetIndex, splits, out: EvalDir, pictu
 
 
 def evaluate_checkpoint(checkpoint, split: str = "all", out=None, data=None, expect_config: dict | None = None,
-                        pictures: int = 4, save_predictions: bool = False, precision: str | None = None) -> tuple[str, EvalDir]:
+                        pictures: int = 4, save_predictions: bool = False, precision: str | None = None,
+                        device: str = "cpu") -> tuple[str, EvalDir]:
     """eval.py: score a checkpoint (or a run folder's latest.pt) on `split` (one of SPLITS, or all:
     every split that has frames); writes metrics.json and table.md (and the pictures) into `out`
     (default: the run folder's eval/). -> (the Markdown table, the output folder)."""
     checkpoint = checkpoint_path(checkpoint)
-    model, cfg, ckpt, index = open_checkpoint(checkpoint, data, expect_config, precision, describe=True)
+    model, cfg, ckpt, index = open_checkpoint(checkpoint, data, expect_config, precision, describe=True, device=device)
     splits = [s for s in SPLITS if index.splits.get(s)] if split == "all" else [split]
     if not splits:
         raise EvalError(f"{index.root}: no split has frames")
@@ -234,7 +242,7 @@ def _labelled(fn, arg, label: str):
 
 
 def compare_checkpoints(checkpoint_a, checkpoint_b, split: str = "all", out=None, data=None, n: int = 1000,
-                        precision: tuple[str | None, str | None] = (None, None)) -> tuple[str, EvalDir]:
+                        precision: tuple[str | None, str | None] = (None, None), device: str = "cpu") -> tuple[str, EvalDir]:
     """eval.py --compare: score two checkpoints (or run folders) on the same frames (`data`, default
     A's data set) and bootstrap the difference A - B over scenes, paired (each resample draws the
     same scenes for both); `precision` (A's, B's) as open_checkpoint's. Writes comparison.json and comparison.md into `out` (default
@@ -242,8 +250,10 @@ def compare_checkpoints(checkpoint_a, checkpoint_b, split: str = "all", out=None
     -> (the Markdown table, the output folder)."""
     a = _labelled(checkpoint_path, checkpoint_a, "--compare A")
     b = _labelled(checkpoint_path, checkpoint_b, "--compare B")
-    model_a, cfg_a, ckpt_a, index = open_checkpoint(a, data, precision=precision[0], label="--compare A", describe=True)
-    model_b, cfg_b, ckpt_b, _ = open_checkpoint(b, str(index.root), precision=precision[1], label="--compare B", describe=True)
+    model_a, cfg_a, ckpt_a, index = open_checkpoint(a, data, precision=precision[0], label="--compare A", describe=True,
+                                                    device=device)
+    model_b, cfg_b, ckpt_b, _ = open_checkpoint(b, str(index.root), precision=precision[1], label="--compare B", describe=True,
+                                              device=device)
     if cfg_a["data"]["grid"] != cfg_b["data"]["grid"]:
         raise EvalError(f"--compare B: {b}: scores on the grid {cfg_b['data']['grid']}, A ({a}) on {cfg_a['data']['grid']}: "
                         "not the same cells to compare")

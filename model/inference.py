@@ -39,6 +39,13 @@ class Prediction:
         return torch.sigmoid(self.occlusion_logit)
 
 
+def pick_device(kind: str = "auto") -> torch.device:
+    """auto: the GPU when torch sees one, else the CPU; cpu; cuda (an InputError without one)."""
+    if kind == "cuda" and not torch.cuda.is_available():
+        raise InputError("--device cuda: this machine has no CUDA device (use auto or cpu)")
+    return torch.device("cuda" if kind == "cuda" or (kind == "auto" and torch.cuda.is_available()) else "cpu")
+
+
 def to_device(batch: dict, device) -> dict:
     return {k: (v.to(device, non_blocking=True) if isinstance(v, torch.Tensor) else v) for k, v in batch.items()}
 

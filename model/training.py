@@ -27,7 +27,7 @@ from torch.utils.data import DataLoader
 
 from common.errors import ConfigError, MachineError
 from common.files import clean_stale_temps, read_json, write_json_atomic
-from common.lifetime import DieWithParent
+from common.lifetime import LoaderWorker
 from common.schema import deep_merge
 from dataset_tools import DatasetIndex, colorize_train
 
@@ -56,6 +56,38 @@ class EpochBatches:
     def __iter__(self):
         for k in range(self.start, self.n // self.batch):
             yield self.order[k * self.batch : (k + 1) * self.batch][self.rank :: self.world]
+
+
+class Pieces:
+    """Each batch of `batches` (lists of sample indices, all one size) cut into `pieces` consecutive
+    parts, so that the DataLoader's workers build one step's batch together: a worker builds whole
+    loader batches, and a step of 64 samples from one worker costs 64 samples' time while the others
+    wait (a GPU step of the paper configuration waited on it). `join_pieces` puts a step back together."""
+
+    def __init__(self, batches, pieces: int, size: int):
+        self.batches, self.per_step = batches, max(1, min(pieces, size))
+
+    def __len__(self):
+        return len(self.batches) * self.per_step
+
+    def __iter__(self):
+        p = self.per_step
+        for b in self.batches:
+            cuts = [round(i * len(b) / p) for i in range(p + 1)]
+            yield from (b[cuts[i]:cuts[i + 1]] for i in range(p))
+
+
+def join_pieces(parts: list[dict]) -> dict:
+    """One batch of the loader batches `parts` (Pieces of one step), in order; entries that are not
+    batched tensors are taken from the first."""
+    if len(parts) == 1:
+        return parts[0]
+    return {k: torch.cat([p[k] for p in parts]) if isinstance(v, torch.Tensor) and v.dim() else v for k, v in parts[0].items()}
+
+
+def loader_pieces(num_workers: int) -> int:
+    """Loader batches per step: one per worker (data.num_workers), none split without workers."""
+    return max(1, num_workers)
 
 
 class GracefulStop:
@@ -287,19 +319,22 @@ def train_one_epoch(run: Run, bar, alpha: torch.Tensor, max_steps: int | None) -
     # own generator: creating an iterator must not draw from the global RNG (dropout), or a
     # resumed run would diverge from an uninterrupted one
     common = dict(num_workers=cfg["data"]["num_workers"], generator=torch.Generator().manual_seed(t["seed"] + run.epoch),
-                  worker_init_fn=DieWithParent())
+                  worker_init_fn=LoaderWorker())
     if isinstance(run.train_ds, ShardStream):  # this process's share of each batch, streamed
         run.train_ds.set_epoch(run.epoch, run.step_in_epoch)
         loader = DataLoader(run.train_ds, batch_size=effective_batch(t) // run.world, **common)
     else:
         run.train_ds.set_epoch(run.epoch)
-        sampler = EpochBatches(len(run.train_ds), effective_batch(t), t["seed"], run.epoch, run.rank, run.world, run.step_in_epoch)
+        share = len(range(run.rank, effective_batch(t), run.world))
+        sampler = Pieces(EpochBatches(len(run.train_ds), effective_batch(t), t["seed"], run.epoch, run.rank, run.world,
+                                      run.step_in_epoch), loader_pieces(common["num_workers"]), share)
         loader = DataLoader(run.train_ds, batch_sampler=sampler, **common)
+    per_step = 1 if isinstance(run.train_ds, ShardStream) else sampler.per_step
     batches = iter(loader)
     t0, samples = time.time(), 0
     while True:
         try:
-            batch = next(batches)
+            batch = join_pieces([next(batches) for _ in range(per_step)])
         except StopIteration:
             return False
         except Exception:

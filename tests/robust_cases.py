@@ -522,6 +522,7 @@ def ckpt_file(make):
 
 add("eval-pictures-negative", "eval", evaluate("--pictures", "-1"), needles=("--pictures",))
 add("eval-threads-negative", "eval", evaluate("--threads", "-1"), needles=("--threads",))
+add("eval-device-cuda-without-one", "eval", evaluate("--device", "cuda"), needles=("--device", "CUDA"))
 add("eval-split-unknown", "eval", evaluate("--split", "eassy"), needles=("--split", "eassy"))
 add("eval-checkpoint-missing", "eval", evaluate(ckpt=lambda ctx: ctx.ws / "none.pt"), needles=("none.pt",))
 add("eval-checkpoint-garbage", "eval", evaluate(ckpt=ckpt_file(lambda ctx: b"garbage")), needles=("model.pt", "checkpoint"))
