@@ -8,7 +8,9 @@ and their ratio (this checkout / baseline) is the figure.
 
 Each run is that commit's `train.py --config CONFIG` (its own tree: the baseline's is written by
 `git archive` under OUT) with data.root, data.val_split=heldout, train.seed and train.val_every
-set, into OUT/<tag>_s<seed>. Runs go one after another, seeds in turn and the two commits in the
+set, into OUT/<tag>_s<seed>. Where the baseline's reader refuses fields that frames have gained
+since (the camera's `sensor` record in meta.json), it reads OUT/data_for_baseline: links to the
+same files, meta.json without those fields. Runs go one after another, seeds in turn and the two commits in the
 order A B, B A, ... (a machine that slows down over hours slows both alike), never two at once.
 A run is stopped (SIGTERM: train.py saves latest.pt) at the first validation that reaches every
 target; its result is written to OUT/<tag>_s<seed>.json and the run is not trained again. An
@@ -24,6 +26,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import signal
 import statistics
 import subprocess
@@ -45,6 +48,47 @@ POLL_S = 20.0
 
 class TtaError(InputError):
     pass
+
+
+_KNOWN_META = """import json
+from dataclasses import fields
+from dataset_tools.format.meta import FrameMeta
+print(json.dumps([f.name for f in fields(FrameMeta) if f.name != "path"]))"""
+
+
+def meta_fields(root: Path) -> list[str] | None:
+    """The frame meta.json fields the tree at `root` reads (its FrameMeta), None if it cannot say."""
+    r = subprocess.run([sys.executable, "-c", _KNOWN_META], cwd=root, env={**os.environ, "PYTHONPATH": str(root)},
+                       capture_output=True, text=True, timeout=120)
+    try:
+        return list(json.loads(r.stdout)) if r.returncode == 0 else None
+    except ValueError:
+        return None
+
+
+def data_view(data: Path, known: list[str], view: Path) -> Path:
+    """`data` as an older tree reads it: a folder of hard links to its files whose meta.json files keep only
+    the fields in `known` (a reader that refuses unknown fields, as 4017132's does the camera's
+    `sensor` record, then reads the same frames). Made once; a finished view is reused."""
+    done = view / ".complete"
+    if done.is_file():
+        return view
+    for src in sorted(data.rglob("*")):
+        dst = view / src.relative_to(data)
+        if src.is_dir():
+            dst.mkdir(parents=True, exist_ok=True)
+            continue
+        dst.parent.mkdir(parents=True, exist_ok=True)
+        if src.name == "meta.json":
+            meta = json.loads(src.read_text())
+            write_text_atomic(dst, json.dumps({k: v for k, v in meta.items() if k in known}))
+        elif not dst.exists():
+            try:
+                os.link(src, dst)  # a hard link: readers may refuse symbolic links
+            except OSError:  # another file system
+                shutil.copy2(src, dst)
+    done.write_text("")
+    return view
 
 
 def parse_targets(items) -> dict[str, float]:
@@ -182,7 +226,10 @@ def main(argv=None) -> int:
                 continue
             if not (roots[tag] / a.config).is_file():
                 raise TtaError(f"--config: {a.config} is not in {tag}'s tree ({roots[tag]})")
-            args = ["--config", a.config, "--set", f"data.root={data}", "--set", "data.val_split=heldout",
+            known = meta_fields(roots[tag]) if tag != "head" else None
+            extra = set(json.loads(next(data.glob("*/*/meta.json")).read_text())) - set(known or [])
+            root = data_view(data, known, (out / f"data_for_{tag}").resolve()) if known and extra else data
+            args = ["--config", a.config, "--set", f"data.root={root}", "--set", "data.val_split=heldout",
                     "--set", f"train.seed={seed}", "--set", f"train.val_every={a.val_every}"]
             for s in a.set:
                 args += ["--set", s]

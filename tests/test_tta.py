@@ -74,3 +74,20 @@ def test_a_run_stops_at_its_target_and_is_not_trained_again(tmp_path, capsys):
 def test_data_that_is_no_data_set_is_one_line(tmp_path):
     with pytest.raises(tta.TtaError, match="--data: .* is not a data set"):
         tta.main(["--data", str(tmp_path), "--baseline", "none"])
+
+
+def test_an_older_reader_gets_the_same_frames_without_the_fields_it_refuses(tmp_path):
+    from testing.toy_data import write_toy_dataset
+
+    root = write_toy_dataset(tmp_path / "toy", frames=2, image_scale=64 / 480, splits=("train",))
+    metas = sorted(root.glob("*/*/meta.json"))
+    known = [k for k in json.loads(metas[0].read_text()) if k != "timings"]
+    view = tta.data_view(root, known, tmp_path / "view")
+    for meta in metas:
+        seen = json.loads((view / meta.relative_to(root)).read_text())
+        assert set(seen) == set(known) and seen["scene"] == json.loads(meta.read_text())["scene"]
+    files = [p for p in root.rglob("*") if p.is_file() and p.name != "meta.json"]
+    assert files and all((view / p.relative_to(root)).read_bytes() == p.read_bytes() for p in files)
+    assert all((view / p.relative_to(root)).stat().st_ino == p.stat().st_ino for p in files)  # links, not copies
+    assert tta.data_view(root, known, tmp_path / "view") == view  # made once, reused
+    assert tta.meta_fields(tta.CODE_DIR) and "sensor" in tta.meta_fields(tta.CODE_DIR)
