@@ -104,11 +104,28 @@ def label_mode(scene):
         set_cycles(scene, **saved)
 
 
+def _light_image(lin: np.ndarray):
+    """A float image of Blender's holding the scene-linear light `lin` (H, W, 3, rows top-down), to be
+    written through the scene's view transform as a render is (`save_render`)."""
+    h, w = lin.shape[:2]
+    im = bpy.data.images.get("camera_light")
+    if im is None:
+        im = bpy.data.images.new("camera_light", w, h, float_buffer=True, alpha=True)
+        im.colorspace_settings.name = "Linear Rec.709"
+    elif tuple(im.size) != (w, h):
+        im.scale(w, h)
+    rgba = np.ones((h, w, 4), np.float32)
+    rgba[..., :3] = lin[::-1]  # Blender's rows run bottom-up
+    im.pixels.foreach_set(rgba.ravel())
+    return im
+
+
 def _render_to_exr(scene, camera, width, height, tmpdir: Path, tag: str, png: Path | None = None,
-                   clock: dict | None = None, post=None, expose=None):
+                   clock: dict | None = None, post=None, expose=None, tone=None):
     """Render through `camera` and return Blender's passes as a dict (rows top-down); time spent
-    saving the PNG (through the view transform at `expose(passes)` times the light, then
-    `post(pixels, passes)`: the camera's auto-exposure and effects) goes to clock["write"]."""
+    saving the PNG (through the view transform at `expose(passes)` times the light, compressed by
+    `tone(light)` first when given, then `post(pixels, passes)`: the camera's auto-exposure and
+    effects) goes to clock["write"]."""
     use_camera(scene, camera)
     if (scene.render.resolution_x, scene.render.resolution_y) != (width, height):
         raise RuntimeError(f"camera '{camera.name}' renders {scene.render.resolution_x}x"
@@ -134,9 +151,13 @@ def _render_to_exr(scene, camera, width, height, tmpdir: Path, tag: str, png: Pa
         # Blender writes date and render-time text chunks: re-encode so equal pixels give equal bytes
         tmp = tmpdir / f"{tag}.png"
         gain = expose(out) if expose else 1.0
+        image = bpy.data.images["Render Result"]
+        if tone is not None:  # the camera's own tone mapping of the exposed light, then the view transform
+            image = _light_image(tone(np.stack([out[f"Combined.{c}"] for c in "RGB"], -1).astype(np.float32) * gain))
+            gain = 1.0
         scene.view_settings.exposure = math.log2(gain)  # the scene's light, before the tone curve
         try:
-            bpy.data.images["Render Result"].save_render(str(tmp), scene=scene)
+            image.save_render(str(tmp), scene=scene)
         finally:
             scene.view_settings.exposure = 0.0
         img = read_png(tmp, np.uint8, 3)
@@ -148,10 +169,10 @@ def _render_to_exr(scene, camera, width, height, tmpdir: Path, tag: str, png: Pa
 
 
 def render_fisheye(scene, camera, width, height, out_dir: Path, name: str, tmpdir: Path, clock: dict,
-                   ego_mask: bool = False, post=None, expose=None) -> None:
+                   ego_mask: bool = False, post=None, expose=None, tone=None) -> None:
     files = FrameFiles(out_dir)
     p = _render_to_exr(scene, camera, width, height, tmpdir, f"cam_{name}", files.camera_png(name), clock, post,
-                       expose)
+                       expose, tone)
     t0 = time.perf_counter()
     semantic = np.rint(p["IndexMA.X"]).astype(np.uint32)
     extra = {}
@@ -232,7 +253,10 @@ def render_frame(built, frame_dir: Path, fisheye_sizes: dict, topdown_size: int,
         w, h = fisheye_sizes[name]
         effects[name] = sensor.draw(render_cfg["sensor"], np.random.default_rng([cycles_seed, 7, k]))
         theta, principal = (sensor_geometry or {}).get(name, (None, None))
-        post = expose = None
+        post = expose = tone = None
+        if "hdr_compression" in effects[name]:
+            def tone(lin, c=effects[name]["hdr_compression"]):
+                return sensor.local_tone(lin, c)
         if effects[name]:
             def expose(passes, p=effects[name]):  # metered on the scene's light
                 return sensor.meter(np.stack([passes[f"Combined.{c}"] for c in "RGB"], -1), p)
@@ -244,7 +268,7 @@ def render_frame(built, frame_dir: Path, fisheye_sizes: dict, topdown_size: int,
                     flow = sensor.motion_flow(rc.camera, rc.cam_to_ego, pos, np.rint(passes["IndexOB.X"]).astype(np.int64),
                                               frame_meta["motion"])
                 return sensor.apply(img, p, t, c, flow, exposed=True)
-        render_fisheye(scene, cam, w, h, frame_dir, name, tmpdir, clock, bool(built.ego_body), post, expose)
+        render_fisheye(scene, cam, w, h, frame_dir, name, tmpdir, clock, bool(built.ego_body), post, expose, tone)
     t1 = time.perf_counter()
     with label_mode(scene):
         td = render_topdown(scene, built.topdown, topdown_size, built.occluders, frame_meta["world_to_ego"], tmpdir,

@@ -87,3 +87,22 @@ def test_label_mode_changes_no_label_and_leaves_nothing_behind(night):
     assert {k: getattr(scene.cycles, k) for k in settings} == settings
     assert all(o.visible_camera for o in built.occluders)
     assert np.array_equal(_rgb(built, scene, tmp), before)
+
+
+def test_the_hdr_tone_mapping_writes_through_the_view_transform_as_a_render_does(night):
+    """The camera's tone mapping hands Blender its own linear light (`_light_image`): with nothing
+    changed it writes the same PNG as the render itself (Blender's dither aside, 1 level); with the
+    HDR compression, far less of a night frame taken 16x too bright clips to white."""
+    from dataset_tools.format.png import read_png
+    from dataset_tools.generation import sensor
+
+    built, scene, _, tmp = night
+    shots = {}
+    for k, tone in {"plain": None, "same": lambda lin: lin, "hdr": lambda lin: sensor.local_tone(lin, 0.3)}.items():
+        _render_to_exr(scene, built.cameras["front"], 64, 40, tmp, "front", tmp / f"{k}.png",
+                       expose=lambda passes: 16.0 / float(sensor.log_average(
+                           np.stack([passes[f"Combined.{c}"] for c in "RGB"], -1))), tone=tone)
+        shots[k] = read_png(tmp / f"{k}.png", np.uint8, 3).astype(int)
+    assert np.abs(shots["same"] - shots["plain"]).max() <= 1
+    white = {k: (v.min(-1) >= 250).mean() for k, v in shots.items()}
+    assert white["plain"] > 0.2 and white["hdr"] < 0.5 * white["plain"]

@@ -109,6 +109,28 @@ def test_auto_exposure_lengthens_the_exposure_then_raises_the_gain():
     assert sensor.meter(day, {}) == 1.0
 
 
+def test_hdr_tone_mapping_compresses_the_bright_large_scale_and_keeps_its_detail():
+    """A car face 6 stops above the key on a street below it: the face comes down by about
+    (1 - c) x 6 stops, the street is left alone, the face's own texture keeps its contrast."""
+    h, w = 60, 96
+    lin = np.full((h, w, 3), 0.05, np.float32)  # the street, below the key
+    texture = 1 + 0.2 * np.sign(np.sin(np.arange(w) / 1.5))[None, 20:60, None]  # +-20 % stripes on the face
+    lin[20:40, 20:60] = sensor.KEY * 64 * texture  # the lit face
+    out = sensor.local_tone(lin, 0.3)
+    face = out[25:35, 30:50, 1] / lin[25:35, 30:50, 1]
+    assert np.log2(face.mean()) == pytest.approx(-0.7 * 6, abs=0.6)
+    assert np.allclose(out[:5, :5], lin[:5, :5])  # far from the face: untouched
+    rel = lambda x: x[25:35, 30:50, 1].std() / x[25:35, 30:50, 1].mean()  # noqa: E731
+    assert rel(out) > 0.7 * rel(lin)  # the detail survives
+    assert np.allclose(sensor.local_tone(lin, 1.0), lin)
+    # an 8-bit image alone: metered, then compressed (the clipped face comes off white)
+    img = np.rint(sensor._to_srgb(lin / 20) * 255).astype(np.uint8)
+    theta = np.zeros((h, w), np.float32)
+    plain = sensor.apply(img, {"exposure_ev": 0.0}, theta, (w / 2, h / 2))
+    toned = sensor.apply(img, {"exposure_ev": 0.0, "hdr_compression": 0.3}, theta, (w / 2, h / 2))
+    assert plain[25:35, 30:50].min() == 255 and toned[25:35, 30:50].max() < 250
+
+
 def test_noise_grows_with_the_analog_gain_not_the_exposure_time(front):
     _, theta, pp = front
     img = np.full(theta.shape + (3,), 60, np.uint8)

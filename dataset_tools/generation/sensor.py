@@ -7,6 +7,7 @@ drawn once per frame and camera from the frame's seed (so a frame renders to the
 | effect | what | distribution |
 |---|---|---|
 | exposure | auto-exposure: the scene's log-average luminance brought to 0.18 (beyond 4x daylight's exposure, the square root of what is missing: night stays darker than day) by the exposure time (0.1-33 ms), then by analog gain (1-8x), then an error in stops | error normal, sd 0.2 (clipped to +-0.5) |
+| hdr | the high-dynamic-range sensor's local tone mapping: the image's large-scale log luminance above 0.18 compressed by a factor, its detail kept (what keeps a car lit by headlights, or a lamp, from clipping to white) | compression uniform 0.25-0.4 |
 | white_balance | red and blue gains against green | normal around 1, sd 0.03 each |
 | vignetting | light falloff, 1 - s (theta / theta_max)^2 by ray angle | s uniform 0.2-0.45 |
 | chromatic_aberration | lateral: red and blue scaled about the principal point | +-k, k uniform 0.0005-0.002 |
@@ -21,10 +22,17 @@ frame, `motion_flow`), projected by the camera model at both ends, and the image
 that path. By day (under 1 ms) nothing moves a pixel; at night (15-33 ms) the road beside a car at
 50 km/h smears by tens of pixels in the side cameras.
 
-Exposure is set on the scene's light, not on the 8-bit image: the renderer meters its linear
-image (`meter`) and writes the PNG through its view transform at that exposure (a night frame
-brought up 30-100x from 8 bits would band), then `apply` adds the rest. Called on an 8-bit image
-alone, `apply` meters and scales that image instead.
+Exposure and the HDR tone mapping act on the scene's light, not on the 8-bit image: the renderer
+meters its linear image (`meter`), compresses it (`local_tone`) and writes the PNG through its view
+transform at that exposure (a night frame brought up 30-100x from 8 bits would band), then `apply`
+adds the rest. Called on an 8-bit image alone, `apply` meters, scales and compresses that image
+instead.
+
+The local tone mapping is what an automotive HDR camera's ISP does (a 120 dB sensor shown on 8
+bits): the log luminance is split into a base, smoothed with an edge-preserving (guided) filter
+over 3 % of the image, and the detail around it; the base above the key (0.18) is scaled by the
+drawn compression, the detail is left. Without it a car 4 m ahead in the ego's headlights, or a
+tail lamp, sits 6-8 stops above a night street's mean and the view transform paints it flat white.
 
 The geometry (ray angles, principal point) comes from the camera model (`geometry`), so a camera
 with another model gets its own falloff; the green channel is never moved.
@@ -36,7 +44,7 @@ import numpy as np
 
 from common.schema import Bool, Section
 
-EFFECTS = ("exposure", "white_balance", "vignetting", "chromatic_aberration", "sharpen", "noise", "jpeg", "motion_blur")
+EFFECTS = ("exposure", "hdr", "white_balance", "vignetting", "chromatic_aberration", "sharpen", "noise", "jpeg", "motion_blur")
 EXPOSURE_MS = (0.1, 33.0)  # the auto-exposure's exposure times: 1 ms at a log-average of 0.18, 1/30 s at most
 ANALOG_GAIN = (1.0, 8.0)  # the sensor's analog gain, raised only once the exposure is at its longest
 KEY = 0.18  # the log-average luminance the auto-exposure aims at in daylight
@@ -61,8 +69,9 @@ def draw(switches: dict, rng: np.random.Generator) -> dict:
         "read_sd": float(0.0005 + 0.001 * u[5]),
         "jpeg_quality": int(70 + 25 * u[6]),
         "noise_seed": int(u[7] * 2**31),
+        "hdr_compression": float(0.25 + 0.15 * u[8]),
     }
-    keep = {"exposure": ["exposure_ev"], "white_balance": ["wb_gains"], "vignetting": ["vignetting"],
+    keep = {"exposure": ["exposure_ev"], "hdr": ["hdr_compression"], "white_balance": ["wb_gains"], "vignetting": ["vignetting"],
             "chromatic_aberration": ["chromatic_aberration"], "sharpen": ["sharpen"],
             "noise": ["shot_gain", "read_sd", "noise_seed"], "jpeg": ["jpeg_quality"]}
     out = {k: p[k] for e, ks in keep.items() if switches.get(e) for k in ks}
@@ -153,9 +162,31 @@ def meter(lin: np.ndarray, params: dict) -> float:
     return t * a * 2.0 ** params["exposure_ev"]
 
 
+LUMA = np.array([0.2126, 0.7152, 0.0722], np.float32)
+HDR_RADIUS = 0.03  # the base layer's smoothing radius, a share of the image's larger side
+HDR_EPS = 0.25  # the guided filter's edge threshold (variance of log2 luminance, stops squared)
+
+
+def local_tone(lin: np.ndarray, compression: float) -> np.ndarray:
+    """The HDR camera's local tone mapping of an exposed linear image (H, W, 3): each pixel scaled
+    so that the base layer of its log2 luminance (a self-guided filter) above log2(KEY) is
+    multiplied by `compression` (1: unchanged); colour ratios and the detail around the base kept."""
+    import cv2
+
+    y = np.log2(np.clip(lin, 0, None) @ LUMA + 1e-5).astype(np.float32)
+    r = max(2, round(HDR_RADIUS * max(y.shape)))
+    mean = lambda x: cv2.boxFilter(x, -1, (2 * r + 1, 2 * r + 1), borderType=cv2.BORDER_REFLECT)  # noqa: E731
+    m = mean(y)
+    a = np.clip(mean(y * y) - m * m, 0, None)
+    a = a / (a + HDR_EPS)
+    base = mean(a) * y + mean(m - a * m)
+    over = np.maximum(base - np.log2(KEY), 0)
+    return lin * np.exp2((compression - 1.0) * over)[..., None]
+
+
 def log_average(lin: np.ndarray):
     """The log-average luminance of a linear image (what an auto-exposure meters)."""
-    lum = lin @ np.array([0.2126, 0.7152, 0.0722], np.float32)
+    lum = lin @ LUMA
     return np.exp(np.mean(np.log(lum + 1e-4)))  # a float32 scalar; black (1e-4) weighs as 13 stops down
 
 
@@ -176,6 +207,8 @@ def apply(img: np.ndarray, params: dict, theta: np.ndarray, principal, flow: np.
         scaled = flow * (params["exposure_ms"] / 1000.0)
         if np.abs(scaled).max() >= 0.5:  # under half a pixel anywhere: nothing to see
             lin = _motion_blur(lin, scaled)
+    if "hdr_compression" in params and not exposed:  # the renderer compressed its light itself
+        lin = local_tone(lin * g, params["hdr_compression"]) / g
     lin = lin * (g * np.asarray(params.get("wb_gains", [1, 1, 1]), np.float32))
     if "vignetting" in params:
         t = np.nan_to_num(theta / np.nanmax(theta), nan=1.0)
