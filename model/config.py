@@ -119,6 +119,9 @@ SCHEMA = Section({
         "warmup_steps": Num(0, 10**9, integer=True, default=0),  # linear warm-up from 0; 0: none
         "weight_decay": Num(0.0, 10.0, default=0.0),
         "grad_clip": Num(0.0, 1e6, default=5.0),
+        # an exponential moving average of the weights, this decay per step (0: off): validation, best.pt and
+        # latest.pt's `model` hold the average (what eval and predict read); latest.pt keeps the raw weights to resume
+        "ema": Num(0.0, 0.99999, default=0.0),
         "seed": Num(0, 2**31 - 1, integer=True, default=0),
         "checkpoint_every": Num(0, 10**9, integer=True, default=50),  # steps; 0: latest.pt only at each epoch end (and on a stop)
         "val_every": Num(0, 10**9, integer=True, default=0),  # steps; 0: at the end of each epoch

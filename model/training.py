@@ -130,6 +130,7 @@ class Run:
     writer: object = None
     ddp: torch.nn.Module | None = None
     stop: GracefulStop | None = None
+    ema: dict | None = None  # train.ema: the averaged weights (state_dict tensors)
 
     @property
     def total_steps(self) -> int:
@@ -216,12 +217,50 @@ def prepare(cfg: dict, out: Path, quiet: bool = False) -> Run:
         # the default, needs neither)
         model = torch.nn.SyncBatchNorm.convert_sync_batchnorm(model)
     opt = make_optimizer(cfg, model)
-    return Run(cfg, out, rank, world, device, index, train_ds, val_ds, model, opt, quiet)
+    run = Run(cfg, out, rank, world, device, index, train_ds, val_ds, model, opt, quiet)
+    if t["ema"]:
+        run.ema = _copy_state(model)
+    return run
+
+
+def _copy_state(model: torch.nn.Module) -> dict:
+    return {k: v.detach().clone() for k, v in model.state_dict().items()}
+
+
+def update_ema(run: Run) -> None:
+    """train.ema: after optimiser step `run.step`, average the weights (and BatchNorm's running
+    statistics) in with decay min(ema, (1 + step) / (10 + step)), so the first steps are not
+    averaged with the initial weights for long; integer buffers are copied."""
+    d = min(run.cfg["train"]["ema"], (1 + run.step) / (10 + run.step))
+    with torch.no_grad():
+        for k, v in run.model.state_dict().items():
+            e = run.ema[k]
+            if e.dtype.is_floating_point:
+                e.mul_(d).add_(v.detach().to(e.dtype), alpha=1 - d)
+            else:
+                e.copy_(v)
+
+
+@contextlib.contextmanager
+def averaged_weights(run: Run):
+    """The model holds the averaged weights inside the block (train.ema; unchanged without it)."""
+    if run.ema is None:
+        yield
+        return
+    raw = _copy_state(run.model)
+    run.model.load_state_dict(run.ema)
+    try:
+        yield
+    finally:
+        run.model.load_state_dict(raw)
 
 
 def checkpoint_state(run: Run) -> dict:
+    """With train.ema, `model` is the averaged weights (what eval and predict load) and `raw` the
+    trained ones (what a resume continues)."""
+    weights = {"model": run.model.state_dict()} if run.ema is None else {"model": run.ema, "raw": run.model.state_dict()}
     return {"config": run.cfg, "rig": run.index.rig.to_dict(), "num_classes": len(run.index.class_names),
-            "class_names": list(run.index.class_names), "model": run.model.state_dict(), "optimizer": run.opt.state_dict(), "step": run.step, "epoch": run.epoch,
+            "class_names": list(run.index.class_names), **weights, "optimizer": run.opt.state_dict(), "step": run.step, "epoch": run.epoch,
             "step_in_epoch": run.step_in_epoch, "best": run.best, "rng": torch.get_rng_state(),
             "cuda_rng": torch.cuda.get_rng_state(run.device) if run.device.type == "cuda" else None}
 
@@ -232,7 +271,9 @@ def resume(run: Run) -> None:
     if not run.latest.is_file():
         return
     ckpt = read_checkpoint(run.latest, expect_config=run.cfg, expect_rig=run.index.rig, resume=True)
-    load_weights(run.model, ckpt["model"], run.latest)
+    load_weights(run.model, ckpt.get("raw", ckpt["model"]), run.latest)
+    if run.ema is not None:  # the average goes on from the saved one (from the weights if it was off)
+        run.ema = {k: v.to(run.device) for k, v in ckpt["model"].items()} if "raw" in ckpt else _copy_state(run.model)
     try:
         run.opt.load_state_dict(ckpt["optimizer"])
         torch.set_rng_state(ckpt["rng"])
@@ -251,7 +292,8 @@ def validate(run: Run) -> dict | None:
     """Score the validation split; keep best.pt when mIoU improves."""
     if run.val_ds is None:
         return None
-    res = validation_scores(run.model, run.val_ds, run.cfg, run.device, run.rank, run.world)
+    with averaged_weights(run):
+        res = validation_scores(run.model, run.val_ds, run.cfg, run.device, run.rank, run.world)
     if run.main:
         for k, v in res.items():
             if not math.isnan(v):
@@ -358,6 +400,8 @@ def train_one_epoch(run: Run, bar, alpha: torch.Tensor, max_steps: int | None) -
             g["lr"] = learning_rate(t, run.step, run.total_steps)
         run.opt.step()
         run.step += 1
+        if run.ema is not None:
+            update_ema(run)
         run.step_in_epoch += 1
         samples += effective_batch(t)
         run.history.append(step_loss)

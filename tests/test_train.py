@@ -155,6 +155,35 @@ def test_resumed_run_continues_exactly_after_a_kill(real_tiny, tmp_path):
     assert c["step"] == 7 and all(torch.equal(pa[k], pc[k]) for k in pa)
 
 
+def test_the_averaged_weights_are_what_the_checkpoint_serves_and_a_resume_continues_them(real_tiny, tmp_path):
+    """train.ema: latest.pt's `model` is the moving average (eval and predict read it), `raw` the
+    trained weights; a run stopped after each step and resumed ends bit-identical to a straight one,
+    and its average is the formula's, step by step."""
+    grid = {"grid": label_grid(real_tiny)}
+
+    def cfg(steps):
+        return write_config(tmp_path / f"c{steps}.yaml", real_tiny, train={"max_steps": steps, "batch_size": 4, "ema": 0.9},
+                            data=grid)
+    run_train(cfg(3), tmp_path / "straight")
+    ema = None
+    for step in (1, 2, 3):
+        run_train(cfg(step), tmp_path / "stepped")
+        ck = torch.load(tmp_path / "stepped" / "latest.pt", map_location="cpu", weights_only=False)
+        assert ck["step"] == step
+        if ema is None:
+            ema = ck["model"]
+            continue
+        d = min(0.9, (1 + step) / (10 + step))
+        ema = {k: d * ema[k] + (1 - d) * ck["raw"][k] if ema[k].dtype.is_floating_point else ck["raw"][k] for k in ema}
+        for k in ema:
+            assert torch.allclose(ck["model"][k], ema[k], rtol=1e-5, atol=1e-7), k
+    a = torch.load(tmp_path / "straight" / "latest.pt", map_location="cpu", weights_only=False)
+    for k in a["model"]:
+        assert torch.equal(a["model"][k], ck["model"][k]) and torch.equal(a["raw"][k], ck["raw"][k]), k
+    moved = [k for k in a["model"] if a["model"][k].dtype.is_floating_point and not torch.equal(a["model"][k], a["raw"][k])]
+    assert moved, "the average must differ from the last weights"
+
+
 def render_dataset(out: Path, dataset_config: Path) -> Path:
     """Real renders: generator (Blender) then label fusion."""
     env = dict(os.environ, PYTHONPATH=str(ROOT))
