@@ -12,6 +12,7 @@ pixel per label cell: rendered `supersample` times finer and reduced to coverage
 
 from __future__ import annotations
 
+import functools
 import math
 import time
 from contextlib import contextmanager
@@ -255,8 +256,7 @@ def render_frame(built, frame_dir: Path, fisheye_sizes: dict, topdown_size: int,
         theta, principal = (sensor_geometry or {}).get(name, (None, None))
         post = expose = tone = None
         if "hdr_compression" in effects[name]:
-            def tone(lin, c=effects[name]["hdr_compression"]):
-                return sensor.local_tone(lin, c)
+            tone = functools.partial(sensor.local_tone, compression=effects[name]["hdr_compression"])
         if effects[name]:
             def expose(passes, p=effects[name]):  # metered on the scene's light
                 return sensor.meter(np.stack([passes[f"Combined.{c}"] for c in "RGB"], -1), p)

@@ -217,14 +217,22 @@ def _box_at(m, x0, x1, y0, y1, z0, z1, mat):
     m.box(((x0 + x1) / 2, (y0 + y1) / 2, z0), (x1 - x0, y1 - y0, z1 - z0), mat=mat)
 
 
-def rear_lamps(m: MeshData, xr, hw, belt, clear, low=False, tall=False, ceiling=None):
+def rear_lamps(m: MeshData, xr, hw, belt, clear, low=False, tall=False, corner=False, ceiling=None):
     """Tail lights, a dark lower bumper and a plate on a rear face at x = xr: wide clusters under
-    the boot lid, tall ones up the corners (`tall`: vans, SUVs, pickups, estates), low ones on a
-    truck's box (`low`); never above `ceiling`, the rear face's top."""
-    z = (clear + 0.35, clear + 0.55) if low else (belt - 0.45, belt + 0.1) if tall else (belt - 0.2, belt - 0.03)
+    the boot lid, tall ones up the pillars (`tall`: vans), clusters at the top corners under the
+    rear window (`corner`: SUVs, pickups, estates), low ones on a truck's box (`low`); never above
+    `ceiling`, the rear face's top. -> the clusters' (bottom, top) z and inner edge (fraction of hw)."""
+    if low:
+        z = (clear + 0.35, clear + 0.55)
+    elif tall:
+        z = (belt - 0.45, belt + 0.1)
+    elif corner:
+        z = (belt - 0.22, belt + 0.12)
+    else:
+        z = (belt - 0.2, belt - 0.03)
     if ceiling is not None:
         z = (z[0], min(z[1], ceiling - 0.04))
-    inner = 0.72 if tall else 0.55
+    inner = 0.72 if tall else 0.62 if corner else 0.55
     for sd in (-1, 1):
         y0, y1 = sorted((sd * 0.95 * hw, sd * inner * hw))
         _box_at(m, xr, xr + 0.035, y0, y1, *z, "taillight")
@@ -233,6 +241,54 @@ def rear_lamps(m: MeshData, xr, hw, belt, clear, low=False, tall=False, ceiling=
         _box_at(m, xr, xr + 0.03, y0, y1, z[0], z[0] + 0.4 * (z[1] - z[0]), "reverse_lamp")
     _box_at(m, xr + 0.004, xr + 0.12, -0.9 * hw, 0.9 * hw, clear + 0.02, clear + 0.16, "trim")
     _box_at(m, xr, xr + 0.025, -0.26, 0.26, clear + 0.2, clear + 0.31, "plate")
+    return z, inner
+
+
+def _half_width(ring, z):
+    """The body's half-width at height z on one station's ring (its right side, arch edge to roof edge)."""
+    return float(np.interp(z, ring[1:8, 2], -ring[1:8, 1]))
+
+
+def _wrap_lamps(m: MeshData, pts, z, depth=0.16):
+    """The tail light clusters wrapped round the rear corners onto the flanks, as real ones are:
+    a strip `depth` long on each side, 4 mm proud of the body, between heights z."""
+    x = pts[:, 0, 0]
+    ks = np.nonzero(x <= x[0] + depth)[0]
+    if len(ks) < 2:
+        return
+    for sd in (-1, 1):
+        v = []
+        for k in ks:
+            for zz in z:
+                v.append((x[k], sd * (_half_width(pts[k], zz) + 0.004), zz))
+        n = len(ks)
+        faces = [(2 * i, 2 * i + 2, 2 * i + 3, 2 * i + 1) for i in range(n - 1)]
+        m.add(v, faces if sd < 0 else [f[::-1] for f in faces], "taillight")  # outward
+
+
+def _high_brake_light(m: MeshData, x, top, half=0.16):
+    """The centre high-mounted stop lamp: a red strip at the top of the rear glass, just inside it."""
+    near = np.nonzero(top >= top.max() - 0.03)[0]
+    if not len(near) or x[near[0]] - x[0] > 0.5 * (x[-1] - x[0]):
+        return
+    xt = float(x[near[0]]) - 0.02
+    zg = float(np.interp(xt - 0.05, x, top))  # the glass's height at the strip's rear edge
+    _box_at(m, xt - 0.05, xt, -half, half, zg - 0.045, zg - 0.01, "taillight")
+
+
+def _rear_seams(m: MeshData, xr, hw, clear, lamp_z, inner, ceiling, lid):
+    """The rear face's shut lines, 3 mm proud: a boot lid's edge under the lamps (`lid`), or a
+    tailgate's sides inside the lamps from the bumper up and its bottom edge over the bumper."""
+    t = 0.006
+    x0, x1 = xr + 0.014, xr + 0.017
+    if lid:
+        _box_at(m, x0, x1, -inner * hw, inner * hw, lamp_z[0] - t, lamp_z[0], "trim")
+        return
+    zb = clear + 0.36
+    _box_at(m, x0, x1, -(inner - 0.12) * hw, (inner - 0.12) * hw, zb - t, zb, "trim")
+    for sd in (-1, 1):
+        y = sd * (inner - 0.12) * hw
+        _box_at(m, x0, x1, min(y, y + sd * t), max(y, y + sd * t), zb, ceiling - 0.03, "trim")
 
 
 def car_front(m: MeshData, xf, hw, belt, clear):
@@ -299,7 +355,13 @@ def body(m: MeshData, style, size, wheel_r, axles, x0=None, rear_details=True):
     else:
         car_front(m, xf, hf, bf, clear)
     if rear_details:
-        rear_lamps(m, xr, hr, br, clear, tall=style in ("van", "suv", "pickup", "wagon"), ceiling=float(top[0]))
+        lamp_z, inner = rear_lamps(m, xr, hr, br, clear, tall=style == "van", corner=style in ("suv", "pickup", "wagon"),
+                                   ceiling=float(top[0]))
+        _wrap_lamps(m, pts, lamp_z)
+        if style in ("hatchback", "wagon", "suv"):
+            _high_brake_light(m, x, top)
+        if style != "bus":
+            _rear_seams(m, xr, hr, clear, lamp_z, inner, float(top[0]), lid=style in ("sedan", "pickup"))
     # mirrors at the foot of the windscreen, outside the doors (the body is narrower than the box)
     g = top - belt
     cab = np.nonzero(g > 0.15)[0]

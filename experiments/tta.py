@@ -218,6 +218,7 @@ def main(argv=None) -> int:
             checkout(a.baseline, src)
         roots["baseline"] = src.resolve()
     results: dict = {tag: {} for tag in roots}
+    known_fields: dict = {}  # tag -> the meta.json fields its reader accepts (None: all), asked once
     for k, seed in enumerate(a.seeds):
         for tag in (list(roots) if k % 2 == 0 else list(roots)[::-1]):
             done = out / f"{tag}_s{seed}.json"
@@ -226,7 +227,9 @@ def main(argv=None) -> int:
                 continue
             if not (roots[tag] / a.config).is_file():
                 raise TtaError(f"--config: {a.config} is not in {tag}'s tree ({roots[tag]})")
-            known = meta_fields(roots[tag]) if tag != "head" else None
+            if tag not in known_fields:
+                known_fields[tag] = meta_fields(roots[tag]) if tag != "head" else None
+            known = known_fields[tag]
             extra = set(json.loads(next(data.glob("*/*/meta.json")).read_text())) - set(known or [])
             root = data_view(data, known, (out / f"data_for_{tag}").resolve()) if known and extra else data
             args = ["--config", a.config, "--set", f"data.root={root}", "--set", "data.val_split=heldout",

@@ -90,6 +90,37 @@ def test_a_car_front_is_laid_out_as_real_ones(style):
     assert intake[:, 2].max() < span["plate"][0][2] and len(parts["rim"]) >= 5  # surround, bars and badge
 
 
+@pytest.mark.parametrize("style", ["sedan", "hatchback", "wagon", "suv", "pickup", "van"])
+def test_a_car_rear_is_laid_out_as_real_ones(style):
+    """Tail lights at the rear corners wrapping round onto both flanks (facing out), no taller than
+    a real cluster but on a van's pillars, shut lines on the rear face, and on tailgate styles the
+    high-mounted stop lamp at the top of the rear glass."""
+    kind = next(k for k, ss in KIND_STYLES.items() if style in ss)
+    l, w, h = assets.VEHICLE_SIZES[kind][0]
+    m = assets.vehicle_mesh(kind, (l, w, h), np.random.default_rng(0), style)
+    v = m.vertices
+    flank, rear, high, seams = {1: 0, -1: 0}, [], [], 0
+    for f, n in zip(m.faces, m.mats):
+        p = v[list(f)]
+        nrm = sum(np.cross(p[k], p[(k + 1) % len(f)]) for k in range(len(f)))
+        if n == "taillight" and np.ptp(p[:, 0]) > 0.04 and abs(nrm[1]) > abs(nrm[2]):  # a strip along a flank
+            side = int(np.sign(p[:, 1].mean()))
+            assert np.sign(nrm[1]) == side, "a wrapped lamp faces into the body"
+            flank[side] += 1
+        elif n == "taillight" and np.abs(p[:, 1]).max() < 0.25 and p[:, 2].min() > 0.8 * h:
+            high.append(p)
+        elif n == "taillight" and p[:, 0].max() < -l / 2 + 0.05:
+            rear.append(p)
+        elif n == "trim" and p[:, 0].max() < -l / 2 + 0.02 and np.ptp(p[:, 0]) < 1e-9:  # on the rear face
+            dy, dz = np.ptp(p[:, 1]), np.ptp(p[:, 2])
+            seams += min(dy, dz) < 0.01 and max(dy, dz) > 0.2  # a line, not the bumper
+    assert flank[1] and flank[-1], "the tail lights stop at the rear face"
+    z = np.concatenate(rear)[:, 2]
+    assert z.max() - z.min() < (0.6 if style == "van" else 0.4), "a tail light cluster as tall as a van's"
+    assert seams >= 1, "no shut line on the rear face"
+    assert bool(high) == (style in ("hatchback", "wagon", "suv")), "the high-mounted stop lamp"
+
+
 def _signed_volume(v, faces) -> float:
     """Positive where the faces wind outward (counter-clockwise seen from outside)."""
     t = 0.0

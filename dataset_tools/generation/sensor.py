@@ -207,9 +207,10 @@ def apply(img: np.ndarray, params: dict, theta: np.ndarray, principal, flow: np.
         scaled = flow * (params["exposure_ms"] / 1000.0)
         if np.abs(scaled).max() >= 0.5:  # under half a pixel anywhere: nothing to see
             lin = _motion_blur(lin, scaled)
+    lin = lin * g
     if "hdr_compression" in params and not exposed:  # the renderer compressed its light itself
-        lin = local_tone(lin * g, params["hdr_compression"]) / g
-    lin = lin * (g * np.asarray(params.get("wb_gains", [1, 1, 1]), np.float32))
+        lin = local_tone(lin, params["hdr_compression"])
+    lin = lin * np.asarray(params.get("wb_gains", [1, 1, 1]), np.float32)
     if "vignetting" in params:
         t = np.nan_to_num(theta / np.nanmax(theta), nan=1.0)
         lin = lin * (1 - params["vignetting"] * t * t)[..., None]
