@@ -267,13 +267,17 @@ def _wrap_lamps(m: MeshData, pts, z, depth=0.16):
 
 
 def _high_brake_light(m: MeshData, x, top, half=0.16):
-    """The centre high-mounted stop lamp: a red strip at the top of the rear glass, just inside it."""
+    """The centre high-mounted stop lamp: a red strip at the top of the rear glass, just inside it,
+    its lens facing back on a dark housing (lit, it must not show through the windscreen)."""
     near = np.nonzero(top >= top.max() - 0.03)[0]
     if not len(near) or x[near[0]] - x[0] > 0.5 * (x[-1] - x[0]):
         return
     xt = float(x[near[0]]) - 0.02
     zg = float(np.interp(xt - 0.05, x, top))  # the glass's height at the strip's rear edge
-    _box_at(m, xt - 0.05, xt, -half, half, zg - 0.045, zg - 0.01, "taillight")
+    z0, z1 = zg - 0.045, zg - 0.01
+    _box_at(m, xt - 0.048, xt, -half - 0.01, half + 0.01, z0 - 0.01, z1 + 0.005, "trim")
+    m.add([(xt - 0.05, -half, z0), (xt - 0.05, half, z0), (xt - 0.05, half, z1), (xt - 0.05, -half, z1)],
+          [(0, 3, 2, 1)], "taillight")  # facing -x
 
 
 def _rear_seams(m: MeshData, xr, hw, clear, lamp_z, inner, ceiling, lid):
