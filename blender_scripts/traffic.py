@@ -16,6 +16,9 @@ from .assets import vehicle_size
 from .layouts import Layout
 
 MIN_GAP = 3.0  # m bumper to bumper
+# what stands in parking bays: mostly cars, some SUVs, few vans (vans are about a tenth of
+# the vehicles registered in Europe and the US, fewer of those parked at shops and homes)
+PARKED_MIX = {"car": 6, "suv": 3, "van": 1}
 EGO_REAR, EGO_FRONT = 1.0, 3.8  # the ego's extent behind / ahead of its origin (rear axle), m
 
 
@@ -87,8 +90,10 @@ def place_traffic(layout: Layout, recipe, rng: np.random.Generator) -> list[Vehi
                 s += size[0] + MIN_GAP + rng.exponential(mean_gap)
             else:
                 s += 2.0
+    parked_kinds = [k for k in kinds if k in PARKED_MIX] or ["car"]
+    parked_p = np.array([PARKED_MIX[k] for k in parked_kinds], float)
     for x, y, yaw, max_l, max_w in layout.parked:
-        kind = str(rng.choice([k for k in kinds if k in ("car", "suv", "van")] or ["car"]))
+        kind = str(rng.choice(parked_kinds, p=parked_p / parked_p.sum()))
         size = vehicle_size(kind, rng, max_w)
         size = (min(size[0], max_l), size[1], size[2])
         out.append(Vehicle(kind, size, -1, 0.0, COLORS[int(rng.integers(len(COLORS)))], (x, y, yaw)))

@@ -41,13 +41,18 @@ STYLES = {
     "van": dict(belt=[(0, .45), (.03, .47), (.80, .47), (.95, .42), (1, .36)],
                 roof=[(0, .52), (.02, 1.0), (.72, 1.0), (.86, .50)], glass=(.66, .80), pillars=(),
                 panel_seams=(.30, .58)),
+    # a van with windows all along (a minibus, a crew or passenger van): pillars between the panes
+    "minibus": dict(belt=[(0, .45), (.03, .47), (.80, .47), (.95, .42), (1, .36)],
+                    roof=[(0, .52), (.02, 1.0), (.72, 1.0), (.86, .50)], glass=(.04, .80),
+                    pillars=(.24, .45, .64), panel_seams=(.45, .64)),
     "bus": dict(belt=[(0, .36), (.01, .38), (.99, .38), (1, .33)],
                 roof=[(0, .45), (.012, .97), (.983, .97), (1, .40)], glass=(.02, .97), pillars="every 1.5 m"),
     "truck_cab": dict(belt=[(0, .40), (.05, .45), (.90, .45), (1, .36)],
                       roof=[(0, .97), (.88, .97), (1, .40)], glass=(.55, .88), pillars=()),
 }
-KIND_STYLES = {"car": ("sedan", "hatchback", "wagon"), "suv": ("suv", "pickup"), "van": ("van",),
+KIND_STYLES = {"car": ("sedan", "hatchback", "wagon"), "suv": ("suv", "pickup"), "van": ("van", "minibus"),
                "truck": ("truck_cab",), "bus": ("bus",)}
+BOXY = ("bus", "truck_cab", "van", "minibus")  # upright sides and a flat front
 BELT = {name: max(v for _, v in s["belt"]) for name, s in STYLES.items()}  # highest beltline (ego cabin cut)
 
 SMOOTH_ANGLE = 35.0  # degrees: edges sharper than this stay sharp, the rest is shaded smooth
@@ -81,9 +86,9 @@ def _rings(style, u, size, clear, axles, arch_r, wheel_r):
     top = np.maximum(belt, roof)
     g = top - belt
     hw = w / 2 * np.interp(u, [0, .03, .1, .9, .97, 1], [.86, .95, 1, 1, .95, .88])
-    if style in ("bus", "truck_cab", "van"):
+    if style in BOXY:
         hw = w / 2 * np.interp(u, [0, .01, .99, 1], [.94, 1, 1, .94])
-    rw = hw * (0.80 if style not in ("bus", "truck_cab", "van") else 0.93)
+    rw = hw * (0.80 if style not in BOXY else 0.93)
     zb = np.full_like(u, clear)
     zb = np.where(u < 0.05, clear + (0.05 - u) / 0.05 * 0.12, zb)
     zb = np.where(u > 0.95, clear + (u - 0.95) / 0.05 * 0.10, zb)
@@ -348,7 +353,7 @@ def body(m: MeshData, style, size, wheel_r, axles, x0=None, rear_details=True):
     bf, br = float(belt[-1]), float(belt[0])
     hf, hr = float(hw[-1]), float(hw[0])
     # lamps, grille and plates on the front and rear faces (1-2 cm proud, inside the box)
-    if style in ("bus", "truck_cab", "van"):
+    if style in BOXY:
         lamp_z = (clear + 0.25, clear + 0.42) if style == "bus" else (bf - 0.2, bf - 0.03)
         for sd in (-1, 1):
             y0, y1 = sorted((sd * 0.42 * hf, sd * 0.8 * hf))
@@ -359,7 +364,7 @@ def body(m: MeshData, style, size, wheel_r, axles, x0=None, rear_details=True):
     else:
         car_front(m, xf, hf, bf, clear)
     if rear_details:
-        lamp_z, inner = rear_lamps(m, xr, hr, br, clear, tall=style == "van", corner=style in ("suv", "pickup", "wagon"),
+        lamp_z, inner = rear_lamps(m, xr, hr, br, clear, tall=style in ("van", "minibus"), corner=style in ("suv", "pickup", "wagon"),
                                    ceiling=float(top[0]))
         _wrap_lamps(m, pts, lamp_z)
         if style in ("hatchback", "wagon", "suv"):

@@ -28,6 +28,13 @@ def frame_seed(scene_seed: int, frame: int) -> int:
     return int(np.random.default_rng([int(scene_seed), 4, int(frame)]).integers(0, 2**31 - 1))
 
 
+def for_weather(render: dict, weather: dict) -> dict:
+    """The render settings a scene gets: `render.night`'s given fields where the sun is below the
+    horizon (the street lamps and headlights light it, not the sky)."""
+    night = {k: v for k, v in (render.get("night") or {}).items() if v is not None}
+    return {**render, **night} if weather["sun_elevation_deg"] < 0 and night else render
+
+
 def run_task(task: RenderTask, state: dict) -> None:
     """Render the task's frames. Its topdown and render sections are complete (the dataset
     config's schema filled in every default), so no default is restated here."""
@@ -60,14 +67,15 @@ def run_task(task: RenderTask, state: dict) -> None:
         grid = BevGrid(-td["bound"], td["bound"], -td["bound"], td["bound"], 2 * td["bound"] / td["size"])
         built = build_scene(recipe, rig, grid, td["height_m"], state["osl_dir"], render["camera_method"],
                             render["ego_body"])
+        render = for_weather(render, built.weather)
         configure_render(bpy.context.scene, render["samples"], render["denoise"], task.threads,
                          render["max_bounces"], render["denoise_quality"])
         from dataset_tools.generation.sensor import camera_geometry
 
         geometry = {rc.name: camera_geometry(rc.camera) for rc in rig} if any(render["sensor"].values()) else {}
-        state.update(key=key, built=built, rig=rig, nominal=nominal, grid=grid, sensor_geometry=geometry)
+        state.update(key=key, built=built, render=render, rig=rig, nominal=nominal, grid=grid, sensor_geometry=geometry)
         t_build = time.perf_counter() - t0
-    built, rig = state["built"], state["rig"]
+    built, rig, render = state["built"], state["rig"], state["render"]
     sizes = {rc.name: (rc.camera.width, rc.camera.height) for rc in rig}
     for frame in task.frames:
         t0 = time.perf_counter()

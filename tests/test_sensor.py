@@ -156,9 +156,25 @@ def test_quality_presets_fill_defaults_that_explicit_fields_override(tmp_path):
     assert mine["samples"] == 8 and not mine["sensor"]["noise"] and mine["sensor"]["jpeg"] and mine["sensor"]["vignetting"]
 
 
+def test_night_scenes_render_with_the_night_settings_where_given(tmp_path):
+    from blender_scripts.worker import for_weather
+
+    photo = load_config(_cfg(tmp_path, {"samples": 2, "denoise_quality": "fast"}))["render"]
+    night = for_weather(photo, {"sun_elevation_deg": -12.0, "lights_on": True})
+    assert (night["samples"], night["denoise_quality"]) == (4, "high") and night["max_bounces"] == photo["max_bounces"]
+    assert for_weather(photo, {"sun_elevation_deg": 30.0, "lights_on": True}) == photo  # headlights in the rain
+    draft = load_config(_cfg(tmp_path, {"quality": "draft"}))["render"]
+    assert for_weather(draft, {"sun_elevation_deg": -12.0}) == draft  # no night settings: as the day
+    mine = load_config(_cfg(tmp_path, {"night": {"samples": 16}}))["render"]
+    assert for_weather(mine, {"sun_elevation_deg": -12.0})["samples"] == 16
+    assert for_weather(mine, {"sun_elevation_deg": -12.0})["denoise_quality"] == "high"  # the preset's, not given
+
+
 @pytest.mark.parametrize("render,field", [({"quality": "cinema"}, "render.quality"),
                                           ({"sensor": {"blur": True}}, "render.sensor.blur"),
-                                          ({"sensor": {"noise": "yes"}}, "render.sensor.noise")])
+                                          ({"sensor": {"noise": "yes"}}, "render.sensor.noise"),
+                                          ({"night": {"samples": 0}}, "render.night.samples"),
+                                          ({"night": {"denoise_quality": "best"}}, "render.night.denoise_quality")])
 def test_bad_quality_or_sensor_field_is_one_line(tmp_path, render, field):
     with pytest.raises(ConfigError) as e:
         load_config(_cfg(tmp_path, render))

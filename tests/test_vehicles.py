@@ -50,6 +50,27 @@ def test_tyres_touch_the_ground_and_glass_sits_above_the_beltline(kind, style):
     assert np.median(glass) > 0.35 * h, "the glasshouse is below the body"
 
 
+def test_a_minibus_is_glazed_along_its_sides_and_a_panel_van_only_at_the_cab():
+    """Side glass (facing sideways, above the beltline) over most of a minibus's length, split by
+    pillars; a panel van's only beside the front seats."""
+    l, w, h = assets.VEHICLE_SIZES["van"][0]
+
+    def side_glass_x(style):
+        m = assets.vehicle_mesh("van", (l, w, h), np.random.default_rng(0), style)
+        xs = []
+        for f, n in zip(m.faces, m.mats):
+            p = m.vertices[list(f)]
+            nrm = sum(np.cross(p[k], p[(k + 1) % len(f)]) for k in range(len(f)))
+            if n == "car_glass" and abs(nrm[1]) > 2 * max(abs(nrm[0]), abs(nrm[2])) and np.ptp(p[:, 0]) > 0.01:
+                xs.append(p[:, 0].mean())
+        return np.array(xs)
+
+    bus, van = side_glass_x("minibus"), side_glass_x("van")
+    assert np.ptp(bus) > 0.65 * l and np.ptp(van) < 0.25 * l
+    gaps = np.diff(np.unique(np.round(bus, 2)))
+    assert (gaps > 0.06).sum() >= 3, "no pillars between the panes"
+
+
 def test_same_draw_same_vehicle_and_styles_differ():
     size = (4.4, 1.8, 1.45)
     a = assets.vehicle_mesh("car", size, np.random.default_rng(7), "sedan")
@@ -90,7 +111,7 @@ def test_a_car_front_is_laid_out_as_real_ones(style):
     assert intake[:, 2].max() < span["plate"][0][2] and len(parts["rim"]) >= 5  # surround, bars and badge
 
 
-@pytest.mark.parametrize("style", ["sedan", "hatchback", "wagon", "suv", "pickup", "van"])
+@pytest.mark.parametrize("style", ["sedan", "hatchback", "wagon", "suv", "pickup", "van", "minibus"])
 def test_a_car_rear_is_laid_out_as_real_ones(style):
     """Tail lights at the rear corners wrapping round onto both flanks (facing out), no taller than
     a real cluster but on a van's pillars, shut lines on the rear face, and on tailgate styles the
@@ -116,7 +137,7 @@ def test_a_car_rear_is_laid_out_as_real_ones(style):
             seams += min(dy, dz) < 0.01 and max(dy, dz) > 0.2  # a line, not the bumper
     assert flank[1] and flank[-1], "the tail lights stop at the rear face"
     z = np.concatenate(rear)[:, 2]
-    assert z.max() - z.min() < (0.6 if style == "van" else 0.4), "a tail light cluster as tall as a van's"
+    assert z.max() - z.min() < (0.6 if style in ("van", "minibus") else 0.4), "a tail light cluster as tall as a van's"
     assert seams >= 1, "no shut line on the rear face"
     assert bool(high) == (style in ("hatchback", "wagon", "suv")), "the high-mounted stop lamp"
 
