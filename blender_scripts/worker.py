@@ -28,11 +28,21 @@ def frame_seed(scene_seed: int, frame: int) -> int:
     return int(np.random.default_rng([int(scene_seed), 4, int(frame)]).integers(0, 2**31 - 1))
 
 
+DENOISE_ORDER = ("fast", "balanced", "high")
+
+
 def for_weather(render: dict, weather: dict) -> dict:
-    """The render settings a scene gets: `render.night`'s given fields where the sun is below the
-    horizon (the street lamps and headlights light it, not the sky)."""
-    night = {k: v for k, v in (render.get("night") or {}).items() if v is not None}
-    return {**render, **night} if weather["sun_elevation_deg"] < 0 and night else render
+    """The render settings a scene gets: where the sun is below the horizon (the street lamps and
+    headlights light it, not the sky), at least `render.night`'s samples and denoising quality."""
+    night = render.get("night") or {}
+    if weather["sun_elevation_deg"] >= 0:
+        return render
+    out = dict(render)
+    if night.get("samples"):
+        out["samples"] = max(render["samples"], night["samples"])
+    if night.get("denoise_quality"):
+        out["denoise_quality"] = max(render["denoise_quality"], night["denoise_quality"], key=DENOISE_ORDER.index)
+    return out
 
 
 def run_task(task: RenderTask, state: dict) -> None:

@@ -156,7 +156,7 @@ def test_quality_presets_fill_defaults_that_explicit_fields_override(tmp_path):
     assert mine["samples"] == 8 and not mine["sensor"]["noise"] and mine["sensor"]["jpeg"] and mine["sensor"]["vignetting"]
 
 
-def test_night_scenes_render_with_the_night_settings_where_given(tmp_path):
+def test_night_scenes_render_with_at_least_the_night_settings(tmp_path):
     from blender_scripts.worker import for_weather
 
     photo = load_config(_cfg(tmp_path, {"samples": 2, "denoise_quality": "fast"}))["render"]
@@ -168,6 +168,8 @@ def test_night_scenes_render_with_the_night_settings_where_given(tmp_path):
     mine = load_config(_cfg(tmp_path, {"night": {"samples": 16}}))["render"]
     assert for_weather(mine, {"sun_elevation_deg": -12.0})["samples"] == 16
     assert for_weather(mine, {"sun_elevation_deg": -12.0})["denoise_quality"] == "high"  # the preset's, not given
+    paper = load_config(_cfg(tmp_path, {"samples": 16, "denoise_quality": "high"}))["render"]
+    assert for_weather(paper, {"sun_elevation_deg": -12.0}) == paper  # never fewer samples than the day's
 
 
 @pytest.mark.parametrize("render,field", [({"quality": "cinema"}, "render.quality"),

@@ -46,7 +46,7 @@ QUALITY = {
     "photo": {"samples": 2, "denoise": True, "max_bounces": 3,
               "sensor": {e: e != "jpeg" for e in EFFECTS},
               # a night street is lit by dozens of small lamps: at 2 samples the denoiser smears
-              # it into clay (docs/rendering.md, "Night")
+              # it into clay (docs/rendering.md, "Kept: night scenes at 4 samples")
               "night": {"samples": 4, "denoise_quality": "high"}},
 }
 
@@ -82,7 +82,7 @@ SCHEMA = Section({
         "ego_body": Bool(default=True),
         # the camera's own effects on the image (generation.sensor), each switched on or off
         "sensor": SENSOR,
-        # what night scenes (the sun below the horizon) render with instead, where given
+        # what night scenes (the sun below the horizon) render with at least, where given
         "night": Section({"samples": Num(1, 65536, integer=True, default=None, nullable=True),
                           "denoise_quality": Str(choices=DENOISE_QUALITIES, default=None, nullable=True)}),
     }),
