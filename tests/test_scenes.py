@@ -175,6 +175,23 @@ def test_traffic_never_overlaps(family):
                 assert not _overlap(boxes[i], boxes[j]), (family, frame, i, j)
 
 
+def test_parking_bays_hold_mostly_cars():
+    """Parked vehicles follow traffic.PARKED_MIX (cars 6 : SUVs 3 : vans 1), not a third each."""
+    from blender_scripts.build_scene import scene_rng
+    from blender_scripts.layouts import build_layout
+    from blender_scripts.traffic import place_traffic
+
+    kinds = []
+    for seed in range(6):
+        recipe = validate_recipe({"family": "parking_lot", "seed": seed, "traffic": {"kinds": ["car", "suv", "van", "truck"]}},
+                                 "parking_lot")
+        lay = build_layout(recipe, scene_rng(seed, 1))
+        kinds += [v.kind for v in place_traffic(lay, recipe, scene_rng(seed, 3)) if v.parked_pose is not None]
+    share = {k: kinds.count(k) / len(kinds) for k in ("car", "suv", "van", "truck")}
+    assert len(kinds) > 100 and share["truck"] == 0.0
+    assert 0.5 < share["car"] < 0.7 and 0.2 < share["suv"] < 0.4 and 0.03 < share["van"] < 0.17, share
+
+
 # ---------------------------------------------------------------- rendered
 
 
