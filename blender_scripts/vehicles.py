@@ -364,7 +364,7 @@ def body(m: MeshData, style, size, wheel_r, axles, x0=None, rear_details=True):
     else:
         car_front(m, xf, hf, bf, clear)
     if rear_details:
-        lamp_z, inner = rear_lamps(m, xr, hr, br, clear, tall=style in ("van", "minibus"), corner=style in ("suv", "pickup", "wagon"),
+        lamp_z, inner = rear_lamps(m, xr, hr, br, clear, tall=style in KIND_STYLES["van"], corner=style in ("suv", "pickup", "wagon"),
                                    ceiling=float(top[0]))
         _wrap_lamps(m, pts, lamp_z)
         if style in ("hatchback", "wagon", "suv"):

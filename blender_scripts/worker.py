@@ -28,23 +28,6 @@ def frame_seed(scene_seed: int, frame: int) -> int:
     return int(np.random.default_rng([int(scene_seed), 4, int(frame)]).integers(0, 2**31 - 1))
 
 
-DENOISE_ORDER = ("fast", "balanced", "high")
-
-
-def for_weather(render: dict, weather: dict) -> dict:
-    """The render settings a scene gets: where the sun is below the horizon (the street lamps and
-    headlights light it, not the sky), at least `render.night`'s samples and denoising quality."""
-    night = render.get("night") or {}
-    if weather["sun_elevation_deg"] >= 0:
-        return render
-    out = dict(render)
-    if night.get("samples"):
-        out["samples"] = max(render["samples"], night["samples"])
-    if night.get("denoise_quality"):
-        out["denoise_quality"] = max(render["denoise_quality"], night["denoise_quality"], key=DENOISE_ORDER.index)
-    return out
-
-
 def run_task(task: RenderTask, state: dict) -> None:
     """Render the task's frames. Its topdown and render sections are complete (the dataset
     config's schema filled in every default), so no default is restated here."""
@@ -52,6 +35,7 @@ def run_task(task: RenderTask, state: dict) -> None:
 
     from dataset_tools.format.layout import frame_dir_name
     from dataset_tools.format.meta import FrameMeta, write_meta
+    from dataset_tools.generation.dataset_config import for_weather
     from geometry.bev import BevGrid
     from geometry.rig import load_rig
 

@@ -157,7 +157,7 @@ def test_quality_presets_fill_defaults_that_explicit_fields_override(tmp_path):
 
 
 def test_night_scenes_render_with_at_least_the_night_settings(tmp_path):
-    from blender_scripts.worker import for_weather
+    from dataset_tools.generation.dataset_config import for_weather
 
     photo = load_config(_cfg(tmp_path, {"samples": 2, "denoise_quality": "fast"}))["render"]
     night = for_weather(photo, {"sun_elevation_deg": -12.0, "lights_on": True})

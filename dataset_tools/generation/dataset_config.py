@@ -107,6 +107,20 @@ def with_quality(d, where: str):
     return {**d, "render": deep_merge(QUALITY[quality], render)}
 
 
+def for_weather(render: dict, weather: dict) -> dict:
+    """The render settings a scene gets: where the sun is below the horizon (the street lamps and
+    headlights light it, not the sky), at least `render.night`'s samples and denoising quality."""
+    night = render.get("night") or {}
+    if weather["sun_elevation_deg"] >= 0:
+        return render
+    out = dict(render)
+    if night.get("samples"):
+        out["samples"] = max(render["samples"], night["samples"])
+    if night.get("denoise_quality"):  # DENOISE_QUALITIES runs from the best down
+        out["denoise_quality"] = min(render["denoise_quality"], night["denoise_quality"], key=DENOISE_QUALITIES.index)
+    return out
+
+
 def resolve(path, base: Path) -> Path:
     """A path as given (absolute or from the working directory), else beside the config, else the
     toolkit's shipped file (common.resources)."""
