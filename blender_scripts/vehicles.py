@@ -22,22 +22,26 @@ from .meshes import MeshData
 # body styles: profiles as (u, fraction of the height) points, interpolated linearly.
 # belt: top of the lower body; roof: top of the glasshouse (below belt = no glasshouse there);
 # glass: (u0, u1) of the side windows; pillars: u of the pillars inside that range; bed: (u0, u1) of
-# an open load bed (pickup); cladding: dark plastic on the lower sides (SUVs)
+# an open load bed (pickup); cladding: dark plastic on the lower sides (SUVs). The rear: corner_lamps,
+# tail light clusters at the top corners under the rear window (estates, SUVs, pickups); high_stop, a
+# tailgate with the high-mounted stop lamp inside the top of its glass; lid, a boot lid or tailgate
+# whose edge runs under the lamps (sedan, pickup)
 STYLES = {
     "sedan": dict(belt=[(0, .50), (.05, .60), (.25, .62), (.72, .60), (.93, .52), (1, .44)],
-                  roof=[(.18, .55), (.34, 1.0), (.60, 1.0), (.76, .55)], glass=(.27, .70), pillars=(.47,)),
+                  roof=[(.18, .55), (.34, 1.0), (.60, 1.0), (.76, .55)], glass=(.27, .70), pillars=(.47,),
+                  lid=True),
     "hatchback": dict(belt=[(0, .52), (.05, .60), (.70, .60), (.92, .52), (1, .45)],
                       roof=[(0, .62), (.03, .86), (.12, 1.0), (.58, 1.0), (.74, .55)], glass=(.10, .68),
-                      pillars=(.40,)),
+                      pillars=(.40,), high_stop=True),
     "wagon": dict(belt=[(0, .52), (.04, .60), (.72, .60), (.93, .52), (1, .45)],
                   roof=[(0, .62), (.025, .93), (.07, 1.0), (.60, 1.0), (.76, .55)], glass=(.06, .70),
-                  pillars=(.22, .45)),
+                  pillars=(.22, .45), corner_lamps=True, high_stop=True),
     "suv": dict(belt=[(0, .52), (.04, .60), (.74, .60), (.94, .55), (1, .48)],
                 roof=[(0, .62), (.025, .94), (.07, 1.0), (.63, 1.0), (.78, .58)], glass=(.06, .72),
-                pillars=(.24, .48), cladding=True),
+                pillars=(.24, .48), cladding=True, corner_lamps=True, high_stop=True),
     "pickup": dict(belt=[(0, .56), (.04, .60), (.74, .60), (.94, .55), (1, .48)],
                    roof=[(.40, .55), (.43, 1.0), (.66, 1.0), (.78, .58)], glass=(.45, .74), pillars=(.58,),
-                   bed=(.02, .40), cladding=True),
+                   bed=(.02, .40), cladding=True, corner_lamps=True, lid=True),
     "van": dict(belt=[(0, .45), (.03, .47), (.80, .47), (.95, .42), (1, .36)],
                 roof=[(0, .52), (.02, 1.0), (.72, 1.0), (.86, .50)], glass=(.66, .80), pillars=(),
                 panel_seams=(.30, .58)),
@@ -364,13 +368,13 @@ def body(m: MeshData, style, size, wheel_r, axles, x0=None, rear_details=True):
     else:
         car_front(m, xf, hf, bf, clear)
     if rear_details:
-        lamp_z, inner = rear_lamps(m, xr, hr, br, clear, tall=style in KIND_STYLES["van"], corner=style in ("suv", "pickup", "wagon"),
+        lamp_z, inner = rear_lamps(m, xr, hr, br, clear, tall=style in KIND_STYLES["van"], corner=s.get("corner_lamps", False),
                                    ceiling=float(top[0]))
         _wrap_lamps(m, pts, lamp_z)
-        if style in ("hatchback", "wagon", "suv"):
+        if s.get("high_stop"):
             _high_brake_light(m, x, top)
         if style != "bus":
-            _rear_seams(m, xr, hr, clear, lamp_z, inner, float(top[0]), lid=style in ("sedan", "pickup"))
+            _rear_seams(m, xr, hr, clear, lamp_z, inner, float(top[0]), lid=s.get("lid", False))
     # mirrors at the foot of the windscreen, outside the doors (the body is narrower than the box)
     g = top - belt
     cab = np.nonzero(g > 0.15)[0]
