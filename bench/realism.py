@@ -11,6 +11,11 @@ when the class is one of `ROAD_VEHICLE` (ImageNet's cars, vans, trucks and buses
 
     python -m bench.realism [--baseline REV|none] [--keep DIR]   # DIR keeps the renders and crop sheets
     python -m bench.realism --keep DIR --pictures docs/img       # the README's before/after pictures
+    python -m bench.realism --compare A B    # two renders of the same scenes, paired: the steady figures, B - A
+
+The steady figures (`steady_top5`, `steady_p`: the top-5 hit and the probability on road vehicles,
+each the mean over `VIEWS` of a crop: mirrored, scaled, shifted) are for choosing between renders:
+one crop's class flips with changes too small to see.
 """
 
 from __future__ import annotations
@@ -78,8 +83,18 @@ def timings(out: Path, wall: float) -> dict:
             "topdown_s_per_frame": mean("topdown_s")}
 
 
-def vehicle_crops(frame_dir: Path, min_side: int = MIN_SIDE, size: int = CROP) -> list[np.ndarray]:
-    """Square crops (size x size x 3, uint8) of the vehicles a frame's fisheye images show large enough."""
+# The steady figures' views of each vehicle: (scale of the side, shift of the centre as a share of the
+# side in x and y, mirrored). One crop's class flips with changes too small to see (docs/rendering.md,
+# "the steady figures"), so choices between renders are made on the mean over views; the figure of
+# record stays the one crop.
+VIEWS = ((1.0, 0.0, 0.0, False), (1.0, 0.0, 0.0, True), (0.9, 0.0, 0.0, False), (1.1, 0.0, 0.0, False),
+         (1.0, 0.06, 0.0, False), (1.0, -0.06, 0.0, False), (1.0, 0.0, 0.06, False), (1.0, 0.0, -0.06, True))
+
+
+def vehicle_views(frame_dir: Path, views=VIEWS, min_side: int = MIN_SIDE, size: int = CROP) -> list[tuple[str, np.ndarray]]:
+    """(key, crops) of each vehicle a frame's fisheye images show large enough: key `camera/instance`,
+    crops (len(views), size, size, 3) uint8, each a square around the vehicle's visible box (side and
+    centre as the view says, shifted inside the image), resized to size."""
     from PIL import Image
 
     files = FrameFiles(frame_dir)
@@ -94,13 +109,23 @@ def vehicle_crops(frame_dir: Path, min_side: int = MIN_SIDE, size: int = CROP) -
             bw, bh = xs.max() - xs.min() + 1, ys.max() - ys.min() + 1
             if min(bw, bh) < min_side:
                 continue
-            side = int(min(max(bw, bh), w, h))
-            cx, cy = (xs.min() + xs.max() + 1) / 2, (ys.min() + ys.max() + 1) / 2
-            x0 = int(np.clip(round(cx - side / 2), 0, w - side))
-            y0 = int(np.clip(round(cy - side / 2), 0, h - side))
-            crop = Image.fromarray(img[y0:y0 + side, x0:x0 + side]).resize((size, size), Image.BILINEAR)
-            out.append(np.asarray(crop))
+            box = max(bw, bh)
+            crops = []
+            for scale, dx, dy, mirror in views:
+                side = int(min(round(box * scale), w, h))
+                cx, cy = (xs.min() + xs.max() + 1) / 2 + dx * box, (ys.min() + ys.max() + 1) / 2 + dy * box
+                x0 = int(np.clip(round(cx - side / 2), 0, w - side))
+                y0 = int(np.clip(round(cy - side / 2), 0, h - side))
+                crop = Image.fromarray(img[y0:y0 + side, x0:x0 + side]).resize((size, size), Image.BILINEAR)
+                crops.append(np.asarray(crop)[:, ::-1] if mirror else np.asarray(crop))
+            out.append((f"{name}/{int(inst)}", np.stack(crops)))
     return out
+
+
+def vehicle_crops(frame_dir: Path, min_side: int = MIN_SIDE, size: int = CROP) -> list[np.ndarray]:
+    """Square crops (size x size x 3, uint8) of the vehicles a frame's fisheye images show large enough:
+    each the square around the vehicle's visible box (the first of `VIEWS`)."""
+    return [c[0] for _, c in vehicle_views(frame_dir, VIEWS[:1], min_side, size)]
 
 
 def classifier():
@@ -119,17 +144,33 @@ def classifier():
     return net, mean, std
 
 
-def top5(crops: list[np.ndarray]) -> np.ndarray:
-    """(N, 5) ImageNet class indices, most likely first."""
+def logits(crops) -> np.ndarray:
+    """(N, 1000) ImageNet logits of N crops (a list or an array of (224, 224, 3) uint8)."""
     import torch
 
-    if not crops:
-        return np.zeros((0, 5), int)
+    if not len(crops):
+        return np.zeros((0, 1000), np.float32)
     net, mean, std = classifier()
     x = torch.from_numpy(np.stack(crops)).permute(0, 3, 1, 2).float() / 255
     with torch.no_grad():
-        logits = torch.cat([net((b - mean) / std) for b in torch.split(x, 32)])
-    return logits.topk(5, dim=1).indices.numpy()
+        return torch.cat([net((b - mean) / std) for b in torch.split(x, 32)]).numpy()
+
+
+def top5(crops) -> np.ndarray:
+    """(N, 5) ImageNet class indices, most likely first."""
+    return np.argsort(-logits(crops), axis=1, kind="stable")[:, :5]
+
+
+def steady(views: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """For (N, V, 224, 224, 3) views of N vehicles: each vehicle's top-5 road-vehicle hits and
+    probability mass on ROAD_VEHICLE (softmax), each the mean over its V views -> two (N,) arrays."""
+    n, v = views.shape[:2]
+    lg = logits(views.reshape(n * v, *views.shape[2:])).reshape(n, v, -1)
+    top = np.argsort(-lg, axis=2, kind="stable")[..., :5]
+    p = np.exp(lg - lg.max(2, keepdims=True))
+    p = p / p.sum(2, keepdims=True)
+    road = sorted(ROAD_VEHICLE)
+    return np.isin(top, road).any(2).mean(1), p[..., road].sum(2).mean(1)
 
 
 def interval(hits: np.ndarray, groups: np.ndarray, reps: int = 2000, seed: int = 0) -> list[float]:
@@ -146,30 +187,64 @@ def interval(hits: np.ndarray, groups: np.ndarray, reps: int = 2000, seed: int =
     return [round(float(v), 3) for v in np.percentile(shares, [2.5, 97.5])]
 
 
-def score(data: Path, sheet: Path | None = None) -> dict:
-    """Shares of crops classified as a road vehicle (top-1, top-5), over every frame and over the
-    frames in daylight (weather preset not `night`: a camera at night sees lamps and silhouettes),
-    with 95 % intervals over scenes (`*_ci`)."""
-    crops, night, scene = [], [], []
+def vehicles(data: Path, views=VIEWS) -> list[dict]:
+    """Every vehicle crop of a rendered data set: `key` (scene/frame/camera/instance), `scene`,
+    `night` (weather preset `night`: a camera at night sees lamps and silhouettes) and `views`
+    (vehicle_views' crops)."""
+    out = []
     for f in sorted({p.parent for p in data.glob("*/*/cam_*.png")}):
         meta = f / "meta.json"
         dark = meta.is_file() and json.loads(meta.read_text()).get("weather", {}).get("preset") == "night"
-        c = vehicle_crops(f)
-        crops += c
-        night += [dark] * len(c)
-        scene += [f.parent.name] * len(c)
-    top = top5(crops)
-    hit = np.isin(top, list(ROAD_VEHICLE))
-    day = ~np.array(night, bool)
-    scene = np.array(scene)
+        for key, v in vehicle_views(f, views):
+            out.append({"key": f"{f.parent.name}/{f.name}/{key}", "scene": f.parent.name, "night": dark, "views": v})
+    return out
+
+
+def score(data: Path, sheet: Path | None = None) -> dict:
+    """Shares of crops classified as a road vehicle (top-1, top-5), over every frame and over the
+    frames in daylight and at night, with 95 % intervals over scenes (`*_ci`); and the steady figures
+    (`steady`, over `VIEWS`): the mean top-5 hit and the mean probability on road vehicles."""
+    cars = vehicles(data)
+    crops = [c["views"][0] for c in cars]
+    hit = np.isin(top5(crops), list(ROAD_VEHICLE))
+    h5, prob = steady(np.stack([c["views"] for c in cars])) if cars else (np.zeros(0), np.zeros(0))
+    day = ~np.array([c["night"] for c in cars], bool)
+    scene = np.array([c["scene"] for c in cars])
     if sheet is not None and crops:
         _sheet(crops, hit[:, 0], sheet)
     share = lambda h: float(h.mean()) if len(h) else float("nan")  # noqa: E731
-    return {"crops": len(crops), "road_vehicle_top1": share(hit[:, 0]), "road_vehicle_top5": share(hit.any(1)),
-            "road_vehicle_top1_ci": interval(hit[:, 0], scene), "road_vehicle_top5_ci": interval(hit.any(1), scene),
-            "crops_day": int(day.sum()), "road_vehicle_top1_day": share(hit[day, 0]),
-            "road_vehicle_top5_day": share(hit[day].any(1)), "crops_night": int((~day).sum()),
-            "road_vehicle_top1_night": share(hit[~day, 0]), "road_vehicle_top5_night": share(hit[~day].any(1))}
+    res = {"crops": len(crops), "road_vehicle_top1": share(hit[:, 0]), "road_vehicle_top5": share(hit.any(1)),
+           "road_vehicle_top1_ci": interval(hit[:, 0], scene), "road_vehicle_top5_ci": interval(hit.any(1), scene),
+           "crops_day": int(day.sum()), "road_vehicle_top1_day": share(hit[day, 0]),
+           "road_vehicle_top5_day": share(hit[day].any(1)), "crops_night": int((~day).sum()),
+           "road_vehicle_top1_night": share(hit[~day, 0]), "road_vehicle_top5_night": share(hit[~day].any(1))}
+    for tag, pick in (("", slice(None)), ("_day", day), ("_night", ~day)):
+        res[f"steady_top5{tag}"], res[f"steady_p{tag}"] = share(h5[pick]), share(prob[pick])
+    return res
+
+
+def compare(a: Path, b: Path) -> dict:
+    """Two renders of the same scenes (data set folders), paired vehicle by vehicle (the vehicles both
+    crop): the steady figures of each and the difference B - A with 95 % intervals over scenes, over
+    every vehicle and at night and in daylight apart. For choosing between two ways of rendering."""
+    ca, cb = ({c["key"]: c for c in vehicles(d)} for d in (a, b))
+    keys = sorted(ca.keys() & cb.keys())
+    res = {"vehicles_a": len(ca), "vehicles_b": len(cb), "paired": len(keys)}
+    if not keys:
+        return res
+    (h5a, pa), (h5b, pb) = (steady(np.stack([c[k]["views"] for k in keys])) for c in (ca, cb))
+    night = np.array([ca[k]["night"] for k in keys], bool)
+    scene = np.array([ca[k]["scene"] for k in keys])
+    for tag, pick in (("", np.ones_like(night)), ("_day", ~night), ("_night", night)):
+        if not pick.any():
+            continue
+        res[f"paired{tag}"] = int(pick.sum())
+        for name, x, y in (("steady_top5", h5a, h5b), ("steady_p", pa, pb)):
+            d = (y - x)[pick]
+            res[f"{name}{tag}"] = [round(float(x[pick].mean()), 3), round(float(y[pick].mean()), 3)]
+            res[f"{name}{tag}_diff"] = round(float(d.mean()), 3)
+            res[f"{name}{tag}_diff_ci"] = interval(d, scene[pick])
+    return res
 
 
 def _sheet(crops, hits, path: Path, n: int = 48, thumb: int = 96) -> None:
@@ -260,7 +335,18 @@ def main(argv=None) -> int:
     ap.add_argument("--seed", type=int, default=SCENES["seed"],
                     help=f"scene seed (default {SCENES['seed']}, the figure of record; another for development)")
     ap.add_argument("--count", type=int, default=SCENES["count"], help="scenes to render")
+    ap.add_argument("--compare", type=Path, nargs=2, metavar=("A", "B"),
+                    help="render nothing: the steady figures of two renders of the same scenes (data set folders, "
+                         "e.g. `--keep` runs' head/), paired vehicle by vehicle, B - A with intervals")
     args = ap.parse_args(argv)
+    if args.compare:
+        for d in args.compare:
+            if not any(d.glob("*/*/cam_*.png")):
+                print(f"bench.realism: --compare: {d}: no rendered frames (<scene>/<frame>/cam_*.png)", file=sys.stderr)
+                return 2
+        res = compare(*args.compare)
+        print(json.dumps(res, indent=1))
+        return 0
     if args.pictures:
         for p in pictures(args.keep, args.pictures):
             print(f"written {p}")
