@@ -31,6 +31,7 @@ from dataset_tools.labels.coverage import reduce_supersampled
 from .camera import use_camera
 
 BACKGROUND_DEPTH = 1e9  # Cycles writes 1e10 where a ray hits nothing
+VIEW_LOOK = "AgX - Medium Low Contrast"  # the camera PNGs' tone curve (AgX's looks, Blender 4.5)
 
 
 def configure_render(scene, samples: int, denoise: bool, threads: int, max_bounces: int = 4,
@@ -59,6 +60,9 @@ def configure_render(scene, samples: int, denoise: bool, threads: int, max_bounc
     scene.render.resolution_percentage = 100
     scene.render.film_transparent = False
     scene.view_settings.view_transform = "AgX"
+    # an automotive HDR camera's flatter tone curve than AgX's base look (docs/rendering.md, "the
+    # camera's tone curve"): night dev vehicles +0.02 steady p, daylight unchanged
+    scene.view_settings.look = VIEW_LOOK
     vl = scene.view_layers[0]
     vl.use_pass_z = True
     vl.use_pass_object_index = True

@@ -46,7 +46,9 @@ def test_road_vehicle_classes_are_imagenet_indices():
 
 def test_score_counts_top1_and_top5(tmp_path, monkeypatch):
     _frame(tmp_path)
-    monkeypatch.setattr(realism, "top5", lambda crops: np.array([[1, 2, 436, 4, 5]] * len(crops)))
+    fake = np.zeros(1000, np.float32)
+    fake[[1, 2, 436, 4, 5]] = [5, 4, 3, 2, 1]  # a station wagon third: a top-5 hit, not a top-1 one
+    monkeypatch.setattr(realism, "logits", lambda crops: np.tile(fake, (len(crops), 1)))
     s = realism.score(tmp_path)
     nan = s.pop("road_vehicle_top1_night"), s.pop("road_vehicle_top5_night")
     assert np.isnan(nan).all()  # no night frame
@@ -55,6 +57,7 @@ def test_score_counts_top1_and_top5(tmp_path, monkeypatch):
     assert s == {"crops": 1, "road_vehicle_top1": 0.0, "road_vehicle_top5": 1.0, "crops_day": 1,
                  "road_vehicle_top1_day": 0.0, "road_vehicle_top5_day": 1.0, "crops_night": 0}
     assert set(steady) == {f"steady_{k}{t}" for k in ("top5", "p") for t in ("", "_day", "_night")}
+    assert steady["steady_top5"] == 1.0 and 0 < steady["steady_p"] < 0.1
 
 
 def test_interval_resamples_scenes_and_covers_the_share():
