@@ -60,8 +60,8 @@ def configure_render(scene, samples: int, denoise: bool, threads: int, max_bounc
     scene.render.resolution_percentage = 100
     scene.render.film_transparent = False
     scene.view_settings.view_transform = "AgX"
-    # an automotive HDR camera's flatter tone curve than AgX's base look (docs/rendering.md, "the
-    # camera's tone curve"): night dev vehicles +0.02 steady p, daylight unchanged
+    # an automotive HDR camera's flatter tone curve than AgX's base look (docs/rendering.md, "Kept: a
+    # flatter tone curve"): night dev vehicles +0.02 steady p, daylight unchanged
     scene.view_settings.look = VIEW_LOOK
     vl = scene.view_layers[0]
     vl.use_pass_z = True
