@@ -156,12 +156,8 @@ def logits(crops) -> np.ndarray:
         return torch.cat([net((b - mean) / std) for b in torch.split(x, 32)]).numpy()
 
 
-def top5(crops) -> np.ndarray:
-    """(N, 5) ImageNet class indices, most likely first."""
-    return _top5(logits(crops))
-
-
 def _top5(lg: np.ndarray) -> np.ndarray:
+    """(..., 5) ImageNet class indices of (..., 1000) logits, most likely first."""
     return np.argsort(-lg, axis=-1, kind="stable")[..., :5]
 
 
