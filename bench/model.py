@@ -10,6 +10,9 @@ inference figures measured alongside in the same run (`*_baseline`, `*_ratio`: H
   from-scratch trunk and the pretrained EfficientNet-Lite0 (`_efficientnet_lite0` figures); the same
   under bf16 autocast (`model.precision: bf16`, `_bf16` figures, and `_bf16_vs_fp32` ratios against
   this checkout's fp32, measured alternating).
+- loading ms per augmented training sample of the default config (192x120 input) and the paper's
+  (480x302), one thread: what each loader worker spends per sample (the paper's configuration on a
+  GPU waits for it: docs/model.md).
 - cylindrical rectification (the paper's baseline): ms per four-camera frame, tables per rig.
 - the roofline: GFLOP of a training step for each trunk (`step_gflop`), this machine's
   matrix-multiply rate in fp32 and bf16 (`matmul_gflops`, the roof a convolution-bound step cannot
@@ -29,6 +32,7 @@ import tempfile
 import time
 from pathlib import Path
 
+import numpy as np
 import torch
 
 from common.resources import CODE_DIR, checkout
@@ -251,6 +255,44 @@ def _child_train(data_root: str, steps: int, trunk: str = "scratch", precision: 
             f"train_peak_rss_mb{sfx}": _peak_rss_mb()}
 
 
+def _toy_camera_targets(ds) -> None:
+    """camera_targets.npy (random ray distances and classes) in each frame of `ds` that has none:
+    the toy data set has no EXR passes to derive them from."""
+    from dataset_tools.format.camera_targets import targets_path, write_camera_targets
+
+    rng = np.random.default_rng(0)
+    for ref in ds.refs:
+        if targets_path(ref.dir).is_file():
+            continue
+        cam = ds.index.rig[ds.names[0]].camera
+        fields = [(f"{k}_{n}", t) for n in ds.names for k, t in (("distance", np.uint16), ("semantic", np.uint8))]
+        table = np.zeros((cam.height, cam.width), np.dtype(fields))
+        for n in ds.names:
+            table[f"distance_{n}"] = rng.integers(100, 4000, table.shape)
+            table[f"semantic_{n}"] = rng.integers(0, 5, table.shape)
+        write_camera_targets(ref.dir, table)
+
+
+def _child_load(data_root: str, samples: int, config: str) -> dict:
+    """Milliseconds to load one augmented training sample of `config` (a loader worker's work:
+    read, warp, colour jitter, lift geometry; one torch thread), median over `samples`."""
+    from model.config import load_config
+    from model.data import BevDataset
+
+    torch.set_num_threads(1)
+    cfg = load_config(ROOT / f"configs/train/{config}.yaml", {"data": {"root": data_root}})
+    ds = BevDataset(data_root, "train", cfg, train=True)
+    if ds.camera_targets:  # a depth loss: random camera targets where the toy frames have none
+        _toy_camera_targets(ds)
+    ds[0]  # warm: caches, lazy imports
+    times = []
+    for i in range(samples):
+        t0 = time.perf_counter()
+        ds[i % len(ds)]
+        times.append(time.perf_counter() - t0)
+    return {f"load_ms_per_sample_{config}": 1000 * statistics.median(times)}
+
+
 def _default_model(trunk: str, precision: str, frames: int | None = None):
     """cpu_default's model (seeded) on the default rig and a random input of `frames` frames of its
     cameras (default: the config's training batch): -> (config, model, input)."""
@@ -415,6 +457,8 @@ def run(train_steps: int = 12, infer_repeat: int = 20, baseline: str | None = No
             for fn, *args in children:
                 res.update(_in_child(fn, *args))
         res.update(precision_versus(children, rounds))
+        for config in ("cpu_medium", "paper"):  # HEAD alone: the baseline has no such child
+            res.update(_in_child("_child_load", str(root), 24, config))
     res.update(roofline(res, trunks))
     res.update(bench_rectify())
     res["load_average_1min_at_end"] = os.getloadavg()[0]

@@ -9,7 +9,8 @@ axis only when the model is radially symmetric with square pixels (fx == fy); `c
 whether a camera qualifies (cylindrical, radial_poly with aspect_ratio != 1 and fx != fy cameras do
 not) and the augmentation leaves the others unrotated.
 
-Colour jitter is the paper's (brightness 0.3, contrast 0.5, saturation 0.3, hue 0.05), with kornia.
+Colour jitter is the paper's (brightness 0.3, contrast 0.5, saturation 0.3, hue 0.05), with kornia
+(its hue step through OpenCV's HSV: `adjust_hue`).
 """
 
 from __future__ import annotations
@@ -131,13 +132,37 @@ def warp_image(image: np.ndarray, camera, t: ViewTransform) -> np.ndarray:
     return cv2.warpAffine(image, full[:2], t.size, flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
 
 
+def adjust_hue(images: torch.Tensor, radians: torch.Tensor) -> torch.Tensor:
+    """kornia.enhance.adjust_hue of (N, 3, H, W) float32 RGB in [0, 1] on the CPU, each image's hue
+    turned by its angle (`radians`: (N,) or one), through OpenCV's HSV conversion: the same HSV
+    (equal to 2e-6) at a seventh of kornia's time, which was a third of the paper configuration's
+    loading of a sample (docs/benchmarks.md, "The paper configuration on one GPU"). Other tensors
+    go to kornia's."""
+    from kornia.enhance import adjust_hue as kornia_hue
+
+    if images.device.type != "cpu" or images.dtype != torch.float32 or images.ndim != 4 or images.shape[1] != 3:
+        return kornia_hue(images, radians)
+    n = images.shape[0]
+    degrees = torch.as_tensor(radians, dtype=torch.float64).reshape(-1).expand(n).rad2deg().numpy()
+    x = images.permute(0, 2, 3, 1).contiguous().numpy()
+    out = np.empty_like(x)
+    for i in range(n):
+        hsv = cv2.cvtColor(x[i], cv2.COLOR_RGB2HSV)  # H in degrees [0, 360)
+        hsv[..., 0] = np.mod(hsv[..., 0] + np.float32(degrees[i]), np.float32(360.0))
+        out[i] = cv2.cvtColor(hsv, cv2.COLOR_HSV2RGB)
+    return torch.from_numpy(out).permute(0, 3, 1, 2)
+
+
 class ColorJitter:
-    """The paper's colour jitter on (N, 3, H, W) float images in [0, 1], one draw per image."""
+    """The paper's colour jitter on (N, 3, H, W) float images in [0, 1], one draw per image:
+    kornia's ColorJitter (its draws, order and clamping), its hue step through `adjust_hue`."""
 
     def __init__(self, brightness=0.3, contrast=0.5, saturation=0.3, hue=0.05):
         import kornia.augmentation as K
 
         self.op = K.ColorJitter(brightness, contrast, saturation, hue, p=1.0)
+        if hasattr(self.op, "_hue_fn"):  # kornia 0.8+: the step's function is an attribute
+            self.op._hue_fn = adjust_hue
 
     def __call__(self, images: torch.Tensor) -> torch.Tensor:
         return self.op(images).clamp(0, 1)

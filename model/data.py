@@ -99,14 +99,19 @@ class BevDataset(Dataset):
     def __len__(self):
         return len(self.refs)
 
-    def __getitem__(self, i: int) -> dict:
+    def __getitem__(self, key) -> dict:
+        """Sample `key`: its place in the split, augmented as in epoch `set_epoch`, or (epoch, place)
+        (a loader that spans epochs: model.training.RunBatches)."""
+        epoch, i = key if isinstance(key, tuple) else (self.epoch, key)
         ref = self.refs[i]
         f = self.frames[i] if self.frames is not None else read_frame(ref, cameras=self.names, num_classes=len(self.class_names), instance=False)
-        return self.make_sample(ref, f, i)
+        return self.make_sample(ref, f, i, epoch)
 
-    def make_sample(self, ref, f: dict, i: int) -> dict:
-        """The sample of frame `f` (read_frame's dict), the `i`-th of the split (which seeds its augmentation)."""
-        rng = np.random.default_rng([self.seed, self.epoch, i])  # independent streams: no collisions
+    def make_sample(self, ref, f: dict, i: int, epoch: int | None = None) -> dict:
+        """The sample of frame `f` (read_frame's dict), the `i`-th of the split, in `epoch` (default
+        set_epoch's): (seed, epoch, i) seeds its augmentation."""
+        epoch = self.epoch if epoch is None else int(epoch)
+        rng = np.random.default_rng([self.seed, epoch, i])  # independent streams: no collisions
         seed = int(rng.integers(2**63))  # the colour jitter's torch seed
         sample = {}
         frustum, rectify = self.geometry_of(ref, f["meta"])

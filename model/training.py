@@ -58,6 +58,29 @@ class EpochBatches:
             yield self.order[k * self.batch : (k + 1) * self.batch][self.rank :: self.world]
 
 
+class RunBatches:
+    """EpochBatches of every epoch from `epoch` (at batch `start`) up to `epochs`, each sample as
+    (epoch, place in the split), which BevDataset augments as that epoch's: one DataLoader, and one
+    start of its workers, for the whole run instead of one per epoch (the paper's configuration on a
+    GPU, 5 steps an epoch on data/medium, waited 4-5 s at each epoch's first step for new workers:
+    docs/benchmarks.md, "The paper configuration on one GPU")."""
+
+    def __init__(self, n: int, batch: int, seed: int, epoch: int, epochs: int, rank: int, world: int, start: int = 0):
+        self.n, self.batch, self.seed, self.epoch, self.epochs = n, batch, seed, epoch, epochs
+        self.rank, self.world, self.start = rank, world, start
+
+    def _epoch(self, e: int) -> EpochBatches:
+        return EpochBatches(self.n, self.batch, self.seed, e, self.rank, self.world, self.start if e == self.epoch else 0)
+
+    def __len__(self):
+        return sum(len(self._epoch(e)) for e in range(self.epoch, self.epochs))
+
+    def __iter__(self):
+        for e in range(self.epoch, self.epochs):
+            for b in self._epoch(e):
+                yield [(e, i) for i in b]
+
+
 class Pieces:
     """Each batch of `batches` (lists of sample indices, all one size) cut into `pieces` consecutive
     parts, so that the DataLoader's workers build one step's batch together: a worker builds whole
@@ -352,29 +375,47 @@ def learning_rate(t: dict, step: int, total: int) -> float:
     return lr
 
 
-def train_one_epoch(run: Run, bar, alpha: torch.Tensor, max_steps: int | None) -> bool:
-    """Train from run.step_in_epoch to the end of run.epoch (or max_steps, or a stop request);
-    returns True when training is finished."""
+def _loader_options(run: Run) -> dict:
+    """The training DataLoader's workers; its own generator: creating an iterator must not draw
+    from the global RNG (dropout), or a resumed run would diverge from an uninterrupted one."""
+    return dict(num_workers=run.cfg["data"]["num_workers"], worker_init_fn=LoaderWorker(),
+                generator=torch.Generator().manual_seed(run.cfg["train"]["seed"] + run.epoch))
+
+
+class RunFeed:
+    """The folder data set's training batches from the run's (epoch, step_in_epoch) to its last
+    epoch (RunBatches), cut into Pieces for the loader's workers, from one DataLoader."""
+
+    def __init__(self, run: Run):
+        t = run.cfg["train"]
+        share = len(range(run.rank, effective_batch(t), run.world))
+        sampler = Pieces(RunBatches(len(run.train_ds), effective_batch(t), t["seed"], run.epoch, t["epochs"], run.rank,
+                                    run.world, run.step_in_epoch), loader_pieces(run.cfg["data"]["num_workers"]), share)
+        self.per_step = sampler.per_step
+        self.batches = iter(DataLoader(run.train_ds, batch_sampler=sampler, **_loader_options(run)))
+
+    def close(self) -> None:
+        self.batches = None  # the workers stop with their iterator
+
+
+def train_one_epoch(run: Run, bar, alpha: torch.Tensor, max_steps: int | None, feed: RunFeed | None = None) -> bool:
+    """Train from run.step_in_epoch to the end of run.epoch (or max_steps, or a stop request), from
+    `feed` (a folder data set) or an epoch's stream of shards; returns True when training is finished."""
     cfg, t = run.cfg, run.cfg["train"]
     loss_cfg = cfg["loss"]
     k = t["accumulate"]  # each optimiser step: one loader batch of batch_size x k samples, k forward/backward passes
-    # own generator: creating an iterator must not draw from the global RNG (dropout), or a
-    # resumed run would diverge from an uninterrupted one
-    common = dict(num_workers=cfg["data"]["num_workers"], generator=torch.Generator().manual_seed(t["seed"] + run.epoch),
-                  worker_init_fn=LoaderWorker())
+    epoch_steps = None  # a stream ends its epoch itself
     if isinstance(run.train_ds, ShardStream):  # this process's share of each batch, streamed
         run.train_ds.set_epoch(run.epoch, run.step_in_epoch)
-        loader = DataLoader(run.train_ds, batch_size=effective_batch(t) // run.world, **common)
+        batches = iter(DataLoader(run.train_ds, batch_size=effective_batch(t) // run.world, **_loader_options(run)))
+        per_step = 1
     else:
-        run.train_ds.set_epoch(run.epoch)
-        share = len(range(run.rank, effective_batch(t), run.world))
-        sampler = Pieces(EpochBatches(len(run.train_ds), effective_batch(t), t["seed"], run.epoch, run.rank, run.world,
-                                      run.step_in_epoch), loader_pieces(common["num_workers"]), share)
-        loader = DataLoader(run.train_ds, batch_sampler=sampler, **common)
-    per_step = 1 if isinstance(run.train_ds, ShardStream) else sampler.per_step
-    batches = iter(loader)
+        batches, per_step = feed.batches, feed.per_step
+        epoch_steps = len(run.train_ds) // effective_batch(t)
     t0, samples = time.time(), 0
     while True:
+        if epoch_steps is not None and run.step_in_epoch >= epoch_steps:
+            return False
         try:
             batch = join_pieces([next(batches) for _ in range(per_step)])
         except StopIteration:
@@ -443,18 +484,23 @@ def train(cfg: dict, out_dir: Path, quiet: bool = False) -> dict:
     max_steps = t["max_steps"] or None
     bar = tqdm(total=run.total_steps, initial=run.step, disable=not run.main or quiet, desc="train", dynamic_ncols=True)
     done = max_steps is not None and run.step >= max_steps
-    while run.epoch < t["epochs"] and not done:
-        done = train_one_epoch(run, bar, alpha, max_steps)
-        if run.stop.requested:
+    feed = None if done or run.epoch >= t["epochs"] or isinstance(run.train_ds, ShardStream) else RunFeed(run)
+    try:
+        while run.epoch < t["epochs"] and not done:
+            done = train_one_epoch(run, bar, alpha, max_steps, feed)
+            if run.stop.requested:
+                if run.main:
+                    save_checkpoint(run.latest, checkpoint_state(run))
+                raise KeyboardInterrupt
+            if not done:
+                run.epoch, run.step_in_epoch = run.epoch + 1, 0
+                if not t["val_every"]:
+                    validate(run)
             if run.main:
                 save_checkpoint(run.latest, checkpoint_state(run))
-            raise KeyboardInterrupt
-        if not done:
-            run.epoch, run.step_in_epoch = run.epoch + 1, 0
-            if not t["val_every"]:
-                validate(run)
-        if run.main:
-            save_checkpoint(run.latest, checkpoint_state(run))
+    finally:
+        if feed is not None:
+            feed.close()
     bar.close()
     if run.writer is not None:
         run.writer.close()

@@ -14,7 +14,7 @@ import torch
 from geometry.bev import BevGrid
 from geometry.rig import RigCamera, load_rig
 from model import CheckpointError, build_model, load_checkpoint, save_checkpoint
-from model.augment import ViewTransform, base_transform, can_rotate, transform_camera, warp_image
+from model.augment import ColorJitter, ViewTransform, adjust_hue, base_transform, can_rotate, transform_camera, warp_image
 from model.config import ConfigError, validate
 from model.frustum import camera_point_cells, depth_bins, feature_camera
 from model.losses import class_weights, occlusion_loss, semantic_loss
@@ -113,6 +113,25 @@ def test_rotation_only_for_square_radial_models():
     assert not can_rotate(cyl) and not can_rotate(squashed)
     with pytest.raises(ValueError, match="cannot be rotated"):
         transform_camera(RigCamera("c", cyl, np.eye(4)), ViewTransform(1.0, 5.0, 0, 0, (100, 80)))
+
+
+def test_hue_through_opencv_equals_kornias():
+    """adjust_hue (OpenCV's HSV) turns hues as kornia's adjust_hue does, grey and black pixels and
+    turns past 0 / 360 degrees included, and the jitter uses it (the pinned kornia has the hook)."""
+    from kornia.enhance import adjust_hue as kornia_hue
+
+    g = torch.Generator().manual_seed(0)
+    x = torch.rand(3, 3, 30, 40, generator=g)
+    x[:, :, :5] = 0.5  # grey: no hue
+    x[:, :, 5:8] = 0.0
+    x[0, 0], x[0, 1:] = 1.0, 0.0  # pure red: hue 0, turned below 0
+    turns = torch.tensor([-0.05, 0.03, 0.5]) * 2 * np.pi
+    out = adjust_hue(x, turns)
+    assert out.shape == x.shape and out.dtype == x.dtype
+    assert (out - kornia_hue(x, turns)).abs().max() < 1e-5
+    assert (out[1:] - x[1:]).abs().max() > 0.05  # it does turn
+    assert torch.equal(adjust_hue(x.double(), turns), kornia_hue(x.double(), turns))  # not float32: kornia's
+    assert ColorJitter().op._hue_fn is adjust_hue
 
 
 def small_cfg(**model):

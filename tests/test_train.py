@@ -337,6 +337,32 @@ def test_pieces_cover_each_batch_in_order():
     assert torch.equal(joined["x"], torch.arange(5)) and joined["n"] == 1
 
 
+def test_one_loader_for_the_run_gives_each_epochs_batches_and_augmentation():
+    """RunBatches: the batches of each epoch in turn (the first from its resumed batch), each sample
+    tagged with its epoch, which BevDataset augments as that epoch's (the run-long loader's samples
+    are those of one loader per epoch: same run, bit for bit, in test_resumed_run... and
+    test_workers_building_parts...)."""
+    from model.training import EpochBatches, RunBatches
+
+    run = RunBatches(14, 4, seed=3, epoch=1, epochs=4, rank=1, world=2, start=2)
+    want = [[(e, i) for i in b] for e in (1, 2, 3) for b in EpochBatches(14, 4, 3, e, 1, 2, 2 if e == 1 else 0)]
+    assert list(run) == want and len(run) == len(want) == 1 + 3 + 3
+    assert all(len(b) == 2 for b in run)  # rank 1's share of each batch of 4
+    assert len(RunBatches(14, 4, 3, epoch=4, epochs=4, rank=0, world=1)) == 0
+
+
+def test_a_sample_keyed_by_epoch_is_that_epochs_sample(real_tiny, tmp_path):
+    from model.config import load_config
+    from model.data import BevDataset
+
+    cfg = load_config(write_config(tmp_path / "c.yaml", real_tiny, augment={"enabled": True}, data={"grid": label_grid(real_tiny)}))
+    ds = BevDataset(real_tiny, "train", cfg, train=True)
+    ds.set_epoch(3)
+    a, b, c = ds[1], ds[(3, 1)], ds[(4, 1)]
+    assert torch.equal(a["images"], b["images"]) and torch.equal(a["point_cell"], b["point_cell"])
+    assert not torch.equal(a["images"], c["images"])  # another epoch, another augmentation
+
+
 def test_sigterm_to_the_process_group_stops_a_run_with_loader_workers_gracefully(real_tiny, tmp_path):
     """`timeout`, a scheduler or Ctrl-C signal the whole process group: the loader workers leave the
     signal to train.py (common.lifetime.LoaderWorker), which finishes its step, saves latest.pt
