@@ -12,7 +12,7 @@ inference figures measured alongside in the same run (`*_baseline`, `*_ratio`: H
   this checkout's fp32, measured alternating).
 - loading ms per augmented training sample of the default config (192x120 input) and the paper's
   (480x302), one thread: what each loader worker spends per sample (the paper's configuration on a
-  GPU waits for it: docs/model.md).
+  GPU waits for it: docs/benchmarks.md, "The paper configuration on one GPU").
 - cylindrical rectification (the paper's baseline): ms per four-camera frame, tables per rig.
 - the roofline: GFLOP of a training step for each trunk (`step_gflop`), this machine's
   matrix-multiply rate in fp32 and bf16 (`matmul_gflops`, the roof a convolution-bound step cannot
@@ -261,11 +261,11 @@ def _toy_camera_targets(ds) -> None:
     from dataset_tools.format.camera_targets import targets_path, write_camera_targets
 
     rng = np.random.default_rng(0)
+    cam = ds.index.rig[ds.names[0]].camera
+    fields = [(f"{k}_{n}", t) for n in ds.names for k, t in (("distance", np.uint16), ("semantic", np.uint8))]
     for ref in ds.refs:
         if targets_path(ref.dir).is_file():
             continue
-        cam = ds.index.rig[ds.names[0]].camera
-        fields = [(f"{k}_{n}", t) for n in ds.names for k, t in (("distance", np.uint16), ("semantic", np.uint8))]
         table = np.zeros((cam.height, cam.width), np.dtype(fields))
         for n in ds.names:
             table[f"distance_{n}"] = rng.integers(100, 4000, table.shape)
