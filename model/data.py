@@ -9,6 +9,8 @@ lifted with that rig: in a split holding such frames every sample carries its ge
 never mixes samples with and without it. Augmentation is drawn
 from a generator seeded by (seed, epoch, sample index), so a sample is the same whichever worker or
 DDP process loads it, and a resumed run sees the same data as an uninterrupted one.
+On a GPU (`device_images`) the images leave the loader as 8 bits with their colour jitter's draws, and
+`finish` converts and jitters the batch on the device (the same draws, the same kornia steps).
 """
 
 from __future__ import annotations
@@ -18,6 +20,7 @@ import torch
 from torch.utils.data import Dataset
 
 from common.errors import InputError
+from common.lifetime import LoaderWorker
 from dataset_tools.format.camera_targets import camera_targets as read_camera_passes
 from dataset_tools.format.layout import INDEX, FrameFiles
 from dataset_tools.format.reader import DatasetIndex, downsample_labels, read_frame, rig_of_frame
@@ -43,9 +46,14 @@ def label_factor(label_grid: BevGrid, model_grid: BevGrid, source: str = "data s
 class BevDataset(Dataset):
     """The samples of a split. `frames`: {position in the split: a frame as read_frame gives it (plus
     `camera_targets`)} held in memory (a split read from shards, model.shards), else each frame is
-    read from the data set folder. `make_sample` turns a read frame into a sample, for a stream too."""
+    read from the data set folder. `make_sample` turns a read frame into a sample, for a stream too.
+    `device_images`: samples carry their images as uint8 and their colour jitter as draws, for
+    `finish` on the training step's device (a quarter of the bytes through the loader, and the
+    jitter off its workers)."""
 
-    def __init__(self, index: DatasetIndex | str, split: str, cfg: dict, train: bool = False, frames: dict | None = None):
+    def __init__(self, index: DatasetIndex | str, split: str, cfg: dict, train: bool = False, frames: dict | None = None,
+                 device_images: bool = False):
+        self.device_images = device_images
         self.index = index if isinstance(index, DatasetIndex) else DatasetIndex(index)
         self.refs = self.index.frames(split)
         self.frames = frames
@@ -131,11 +139,16 @@ class BevDataset(Dataset):
             if rectify:
                 img = rectify(rc.name, img)
             imgs.append(warp_image(img, rc.camera, t))
-        images = torch.from_numpy(np.stack(imgs)).permute(0, 3, 1, 2).float() / 255.0
-        if self.jitter is not None:
-            with torch.random.fork_rng(devices=[]):
-                torch.manual_seed(seed)
-                images = self.jitter(images)
+        images = torch.from_numpy(np.stack(imgs)).permute(0, 3, 1, 2)
+        if self.device_images:
+            if self.jitter is not None:
+                sample["jitter_factors"], sample["jitter_order"] = self.jitter.draw(len(imgs), seed)
+        else:
+            images = images.float() / 255.0
+            if self.jitter is not None:
+                with torch.random.fork_rng(devices=[]):
+                    torch.manual_seed(seed)
+                    images = self.jitter(images)
         if self.camera_targets:
             sample["depth_target"], sample["camera_semantic"] = self.targets_of(ref, frustum, transforms, rectify, f.get("camera_targets"))
         sem, vis = f["semantic"], f["visibility"]
@@ -150,3 +163,27 @@ class BevDataset(Dataset):
             "visibility": torch.from_numpy(np.ascontiguousarray(vis, dtype=np.float32)),
             "index": i,
         }
+
+    def finish(self, batch: dict) -> dict:
+        """A batch of `device_images` samples (on its device) as `make_sample` makes them without:
+        images as float in [0, 1], jittered with their draws."""
+        if batch["images"].dtype != torch.uint8:
+            return batch
+        batch = dict(batch)
+        images = batch["images"].float() / 255.0
+        if "jitter_factors" in batch:
+            images = self.jitter.apply(images, batch.pop("jitter_factors"), batch.pop("jitter_order"))
+        batch["images"] = images
+        return batch
+
+
+class DataWorker(LoaderWorker):
+    """A DataLoader worker (common.lifetime.LoaderWorker) whose OpenCV keeps to one thread, as torch
+    does in a worker: the workers are the parallelism. OpenCV's own pool in each of 12 workers on 16
+    cores held the paper configuration's loader at 55 samples/s instead of 67 (H200, 2026-11-27)."""
+
+    def __call__(self, *args) -> None:
+        super().__call__(*args)
+        import cv2
+
+        cv2.setNumThreads(1)

@@ -21,12 +21,11 @@ from torch.utils.data import DataLoader, Subset
 
 from common.errors import InputError
 from common.files import output_dir, write_json_atomic, write_text_atomic
-from common.lifetime import LoaderWorker
 from dataset_tools import SPLITS, DatasetIndex, read_frame
 
 from .bootstrap import paired_bootstrap, per_scene_arrays, scene_bootstrap
 from .checkpoint import in_precision, load_checkpoint
-from .data import BevDataset
+from .data import BevDataset, DataWorker
 from .eval_report import comparison_table, confusion_picture, frame_picture, markdown_table
 from .inference import pick_device, predict, to_device, write_prediction
 from .metrics import BevMetrics, confusion, occlusion_confusion
@@ -52,7 +51,7 @@ def score(model, ds, on_batch, frames=None, batch_size: int = 1, num_workers: in
     # every worker builds a part of a batch (a worker builds whole batches, and frames are scored alone)
     batch_size = -(-batch_size // max(1, num_workers))
     loader = DataLoader(Subset(ds, indices), batch_size=batch_size, num_workers=num_workers, generator=torch.Generator(),
-                        worker_init_fn=LoaderWorker())
+                        worker_init_fn=DataWorker())
     if desc is not None:
         from tqdm import tqdm
 

@@ -27,13 +27,12 @@ from torch.utils.data import DataLoader
 
 from common.errors import ConfigError, MachineError
 from common.files import clean_stale_temps, read_json, write_json_atomic
-from common.lifetime import LoaderWorker
 from common.schema import deep_merge
 from dataset_tools import DatasetIndex, colorize_train
 
 from .checkpoint import CheckpointError, build_model, load_weights, read_checkpoint, save_checkpoint
 from .cpu import native_bf16, resolve_precision, tune_cpu
-from .data import BevDataset, DataError
+from .data import BevDataset, DataError, DataWorker
 from .evaluation import validation_scores
 from .losses import class_weights, total_loss
 from .inference import decode, forward, to_device
@@ -224,7 +223,7 @@ def prepare(cfg: dict, out: Path, quiet: bool = False) -> Run:
         index, train_ds, val_ds = shard_datasets(cfg, rank, world, effective_batch(t) // world)
     else:
         index = DatasetIndex(cfg["data"]["root"])
-        train_ds = BevDataset(index, cfg["data"]["train_split"], cfg, train=True)
+        train_ds = BevDataset(index, cfg["data"]["train_split"], cfg, train=True, device_images=device.type != "cpu")
         val_split = cfg["data"]["val_split"]
         if val_split and val_split not in index.splits:
             raise ConfigError(f"data.val_split: no split '{val_split}' in {index.root} (have: {', '.join(index.splits)}; '' for none)")
@@ -378,7 +377,7 @@ def learning_rate(t: dict, step: int, total: int) -> float:
 def _loader_options(run: Run) -> dict:
     """The training DataLoader's workers; its own generator: creating an iterator must not draw
     from the global RNG (dropout), or a resumed run would diverge from an uninterrupted one."""
-    return dict(num_workers=run.cfg["data"]["num_workers"], worker_init_fn=LoaderWorker(),
+    return dict(num_workers=run.cfg["data"]["num_workers"], worker_init_fn=DataWorker(),
                 generator=torch.Generator().manual_seed(run.cfg["train"]["seed"] + run.epoch))
 
 
@@ -426,7 +425,10 @@ def train_one_epoch(run: Run, bar, alpha: torch.Tensor, max_steps: int | None, f
             raise
         run.opt.zero_grad(set_to_none=True)
         step_loss = 0.0
-        for i, batch in enumerate(micro_batches(to_device(batch, run.device), k)):
+        batch = to_device(batch, run.device)
+        if isinstance(run.train_ds, BevDataset):
+            batch = run.train_ds.finish(batch)  # a GPU's images: 8 bits and jitter draws until here
+        for i, batch in enumerate(micro_batches(batch, k)):
             # DDP averages gradients once, on the last micro-batch
             with run.ddp.no_sync() if run.world > 1 and i < k - 1 else contextlib.nullcontext():
                 out = forward(run.ddp, batch)

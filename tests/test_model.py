@@ -134,6 +134,23 @@ def test_hue_through_opencv_equals_kornias():
     assert ColorJitter().op._hue_fn is adjust_hue
 
 
+def test_jitter_of_a_batch_from_draws_equals_each_samples_own():
+    """ColorJitter.apply: samples with their own draws (orders differing) jittered in one call come
+    out as each sample's jitter under its seed."""
+    jitter = ColorJitter()
+    x = torch.rand(3, 4, 3, 20, 30, generator=torch.Generator().manual_seed(1))
+    seeds = [s for s in range(40) if jitter.draw(4, s)[1][0] != jitter.draw(4, 0)[1][0]][:2] + [0]
+    draws = [jitter.draw(4, s) for s in seeds]
+    assert len({tuple(o.tolist()) for _, o in draws}) > 1
+    out = jitter.apply(x, torch.stack([f for f, _ in draws]), torch.stack([o for _, o in draws]))
+    for i, s in enumerate(seeds):
+        with torch.random.fork_rng(devices=[]):
+            torch.manual_seed(s)
+            own = jitter(x[i])
+        assert (out[i] - own).abs().max() < 1e-6
+    assert (out - x).abs().max() > 0.05
+
+
 def small_cfg(**model):
     m = {"encoder": {"widths": [8, 16, 16], "blocks": [1, 1]}, "stride": 4, "context_channels": 8,
          "depth": {"min": 1.0, "max": 30.0, "bins": 8}, "bev_encoder": {"widths": [8, 16, 16], "blocks": [1, 1]}}

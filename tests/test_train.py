@@ -363,6 +363,27 @@ def test_a_sample_keyed_by_epoch_is_that_epochs_sample(real_tiny, tmp_path):
     assert not torch.equal(a["images"], c["images"])  # another epoch, another augmentation
 
 
+def test_images_finished_on_the_device_are_the_workers_images(real_tiny, tmp_path):
+    """device_images (a GPU run): samples leave the loader as uint8 with their jitter's draws, and
+    `finish` on the batch gives the images the workers would have made (same draws, same steps)."""
+    from torch.utils.data import default_collate
+
+    from model.config import load_config
+    from model.data import BevDataset
+
+    cfg = load_config(write_config(tmp_path / "c.yaml", real_tiny, augment={"enabled": True}, data={"grid": label_grid(real_tiny)}))
+    ref, dev = BevDataset(real_tiny, "train", cfg, train=True), BevDataset(real_tiny, "train", cfg, train=True, device_images=True)
+    keys = [(2, 0), (2, 1), (5, 1)]
+    raw = default_collate([dev[k] for k in keys])
+    assert raw["images"].dtype == torch.uint8 and raw["jitter_order"].shape == (3, 4)
+    done, want = dev.finish(raw), default_collate([ref[k] for k in keys])
+    assert "jitter_factors" not in done and done.keys() == want.keys()
+    assert (done["images"] - want["images"]).abs().max() < 1e-6
+    assert torch.equal(done["point_cell"], want["point_cell"]) and torch.equal(done["semantic"], want["semantic"])
+    plain = BevDataset(real_tiny, "train", cfg, train=False, device_images=True)
+    assert torch.equal(plain.finish(default_collate([plain[0]]))["images"][0], BevDataset(real_tiny, "train", cfg)[0]["images"])
+
+
 def test_sigterm_to_the_process_group_stops_a_run_with_loader_workers_gracefully(real_tiny, tmp_path):
     """`timeout`, a scheduler or Ctrl-C signal the whole process group: the loader workers leave the
     signal to train.py (common.lifetime.LoaderWorker), which finishes its step, saves latest.pt
