@@ -217,3 +217,28 @@ def test_blender_10cm_line_between_cell_centres_is_lane_marking(blender_frame, g
     with label_mode(scene):
         point = render_topdown(scene, bpy.data.objects["topdown"], grid.cols, [], np.eye(4), tmp / "t", 1)
     assert not (point["ground.semantic"] == CLASS_IDS["lane_marking"]).any()
+
+
+def test_the_audits_caches_answer_for_their_own_camera(tmp_path, front, grid):
+    """The sweep geometry is kept per camera origin and the solid angles per ray table: a second
+    origin, and a table given a freed table's id (which happened when the ray-table cache dropped
+    tables), must get their own, as if computed afresh."""
+    import dataclasses
+
+    from dataset_tools.labels.visibility import ray_tables
+    from dataset_tools.qa import audit
+
+    top = read_topdown(write_frame(tmp_path / "f", front, grid, [KERB, *CARS]))["height"].astype(np.float32)
+    a, b = (0.5, 0.0, 1.0), (3.0, 1.0, 1.5)
+    fresh = {}
+    for o in (a, b):
+        audit._SWEEPS.clear()
+        fresh[o] = audit.seen_height(grid, top, o)
+    assert not np.array_equal(fresh[a], fresh[b])
+    for o in (a, b, a):  # both kept now
+        np.testing.assert_array_equal(audit.seen_height(grid, top, o), fresh[o])
+    table = ray_tables(front)["front"]
+    other = dataclasses.replace(table, rays=np.roll(table.rays, 7, axis=1))
+    audit._OMEGA[id(other)] = (table, audit.pixel_solid_angle(table))  # another table's entry under this id
+    np.testing.assert_array_equal(audit.pixel_solid_angle_cached(other), audit.pixel_solid_angle(other))
+    assert not np.array_equal(audit.pixel_solid_angle(other), audit.pixel_solid_angle(table), equal_nan=True)

@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
@@ -60,7 +61,33 @@ def seen_height(grid, top: np.ndarray, origin, n_azimuth: int = N_AZIMUTH) -> np
     """(rows, cols) float32: the lowest height seen from `origin` (ego frame) at the far edge of each
     cell, over the height map `top` (-inf: no blocker) by a radial sweep: along n_azimuth rays the
     steepest slope (height - camera z) / r of the samples before a cell blocks what lies beyond."""
+    oz = float(origin[2])
+    sweep = _sweep(grid, origin, n_azimuth)
+    h = np.append(np.asarray(top, np.float32).reshape(-1), np.float32(-np.inf))[sweep.sample]
+    slope = np.maximum.accumulate(((h - oz) / sweep.radii).astype(np.float32), axis=1)
+    before = np.where(sweep.blocked, slope[sweep.ray, sweep.last], -np.inf)
+    return (oz + sweep.far * before).astype(np.float32)
+
+
+class _Sweep(NamedTuple):
+    sample: np.ndarray  # (n_azimuth, k) flat cell of each sample along each ray (rows * cols: outside)
+    radii: np.ndarray  # (k,) the samples' distance from the origin
+    ray: np.ndarray  # (rows, cols) the ray through each cell
+    last: np.ndarray  # (rows, cols) the last sample before the cell's near corner (clipped)
+    blocked: np.ndarray  # (rows, cols) some sample lies before it
+    far: np.ndarray  # (rows, cols) the distance to the cell's far edge
+
+
+_SWEEPS: dict[tuple, _Sweep] = {}
+
+
+def _sweep(grid, origin, n_azimuth: int) -> _Sweep:
+    """The sweep's geometry from one camera origin: the same for every frame of a scene (a rig is
+    fixed to the ego), so kept for the last few origins."""
     ox, oy, oz = (float(v) for v in origin)
+    key = (ox, oy, grid.x_min, grid.x_max, grid.y_min, grid.y_max, grid.res, n_azimuth)
+    if key in _SWEEPS:
+        return _SWEEPS[key]
     c = grid.cell_centres()
     dx, dy = c[..., 0] - ox, c[..., 1] - oy
     r_cell = np.hypot(dx, dy)
@@ -70,15 +97,15 @@ def seen_height(grid, top: np.ndarray, origin, n_azimuth: int = N_AZIMUTH) -> np
     radii = (np.arange(k) + 1) * step
     sx = ox + np.cos(az)[:, None] * radii
     sy = oy + np.sin(az)[:, None] * radii
-    row, col, inside = grid.cell_of(np.stack([sx, sy], -1).reshape(-1, 2))
-    h = np.full(row.shape, -np.inf, np.float32)
-    h[inside] = top[row[inside], col[inside]]
-    slope = np.maximum.accumulate(((h.reshape(n_azimuth, k) - oz) / radii).astype(np.float32), axis=1)
+    row, col, inside = grid.cell_of(np.stack([sx, sy], -1))
+    sample = np.where(inside, row * grid.cols + col, grid.rows * grid.cols).astype(np.int32)
     j = np.floor((np.arctan2(dy, dx) + np.pi) / (2 * np.pi / n_azimuth)).astype(np.int64) % n_azimuth
     # samples before the cell's near corner block it; the cell's own column does not
     kb = np.floor((r_cell - grid.res * math.sqrt(0.5)) / step).astype(np.int64) - 1
-    before = np.where(kb >= 0, slope[j, np.clip(kb, 0, k - 1)], -np.inf)
-    return (oz + (r_cell + grid.res / 2) * before).astype(np.float32)
+    if len(_SWEEPS) >= 16:  # a scene's cameras, and the next scene's
+        _SWEEPS.clear()
+    _SWEEPS[key] = _Sweep(sample, radii, j, np.clip(kb, 0, k - 1), kb >= 0, r_cell + grid.res / 2)
+    return _SWEEPS[key]
 
 
 def pixel_solid_angle(table: RayTable) -> np.ndarray:
@@ -110,14 +137,20 @@ def expected_pixels(grid, rc, table: RayTable, top: np.ndarray, seen: np.ndarray
     return px.reshape(grid.shape).astype(np.float32)
 
 
-_OMEGA: dict[int, np.ndarray] = {}
+_OMEGA: dict[int, tuple[RayTable, np.ndarray]] = {}
 
 
 def pixel_solid_angle_cached(table: RayTable) -> np.ndarray:
-    key = id(table)  # ray tables are cached per calibration (labels.visibility.camera_table)
-    if key not in _OMEGA:
-        _OMEGA[key] = pixel_solid_angle(table)
-    return _OMEGA[key]
+    """pixel_solid_angle, kept per ray table (tables are cached per calibration by
+    labels.visibility.camera_table, and dropped from there after 64). The entry holds its table, so
+    the table's id cannot be reused by another while the entry lives (an id alone could: a freed
+    table's id given to the next scene's camera returned the wrong camera's solid angles)."""
+    hit = _OMEGA.get(id(table))
+    if hit is None or hit[0] is not table:
+        if len(_OMEGA) >= 64:
+            _OMEGA.pop(next(iter(_OMEGA)))
+        hit = _OMEGA[id(table)] = (table, pixel_solid_angle(table))
+    return hit[1]
 
 
 def ring_masks(grid) -> dict:
