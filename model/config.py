@@ -46,6 +46,9 @@ SCHEMA = Section({
         "input_size": List(Num(8, 4096, integer=True), length=2, default=[192, 120]),  # (W, H) fed to the encoder
         "grid": GridField(default={"bound": 25.0, "res": 0.25}),  # geometry.bev.BevGrid.from_dict
         "num_workers": Num(0, 64, integer=True, default=1),
+        # decoded frames kept in memory by each loader process, up to this many MB (0: none): the
+        # camera PNGs and label PNGs are decoded, and the labels pooled, once per run, not per epoch
+        "cache_mb": Num(0, 10**6, integer=True, default=1024),
         # the paper's baseline: fisheye images remapped to cylindrical ones (geometry.rectify)
         "rectify": Str(choices=("none", "cylindrical"), default="none"),
         "cylinder": Section({

@@ -78,6 +78,8 @@ class BevDataset(Dataset):
         loss = cfg["loss"]
         self.camera_targets = train and (loss["depth_weight"] > 0 or loss["camera_seg_weight"] > 0)
         self.lut = train_lut(self.class_names)
+        self.cache: dict[int, dict] = {}  # decoded frames, up to data.cache_mb (each loader process its own)
+        self.cache_budget = int(cfg["data"].get("cache_mb", 0)) * 2**20
 
     def geometry_of(self, ref, meta: dict):
         """(lift geometry, rectifier or None) of the frame's rig: the nominal ones unless the
@@ -112,8 +114,32 @@ class BevDataset(Dataset):
         (a loader that spans epochs: model.training.RunBatches)."""
         epoch, i = key if isinstance(key, tuple) else (self.epoch, key)
         ref = self.refs[i]
-        f = self.frames[i] if self.frames is not None else read_frame(ref, cameras=self.names, num_classes=len(self.class_names), instance=False)
-        return self.make_sample(ref, f, i, epoch)
+        return self.make_sample(ref, self.frames[i] if self.frames is not None else self.read(i), i, epoch)
+
+    def read(self, i: int) -> dict:
+        """Frame i of the split from the data set folder, decoded and its labels pooled to the model
+        grid; kept while the cache's budget lasts (the same sample either way)."""
+        if i in self.cache:
+            return self.cache[i]
+        f = read_frame(self.refs[i], cameras=self.names, num_classes=len(self.class_names), instance=False)
+        f["semantic"], f["visibility"] = self.pooled_labels(self.refs[i], f)
+        f["pooled"] = True
+        size = sum(a.nbytes for a in (*f["images"].values(), f["semantic"], f["visibility"]))
+        if size <= self.cache_budget:
+            self.cache[i] = f
+            self.cache_budget -= size
+        return f
+
+    def pooled_labels(self, ref, f: dict) -> tuple[np.ndarray, np.ndarray]:
+        """The frame's (semantic, visibility) labels on the model grid."""
+        if f.get("pooled"):
+            return f["semantic"], f["visibility"]
+        sem, vis = f["semantic"], f["visibility"]
+        if self.factor > 1:
+            sem, vis = downsample_labels(sem, vis, self.factor, priority=self.priority, num_classes=len(self.class_names))
+        if sem.shape != self.grid.shape:
+            raise DataError(f"{FrameFiles(ref.dir).semantic}: {sem.shape} after pooling, model grid is {self.grid.shape}")
+        return sem, vis
 
     def make_sample(self, ref, f: dict, i: int, epoch: int | None = None) -> dict:
         """The sample of frame `f` (read_frame's dict), the `i`-th of the split, in `epoch` (default
@@ -151,16 +177,12 @@ class BevDataset(Dataset):
                     images = self.jitter(images)
         if self.camera_targets:
             sample["depth_target"], sample["camera_semantic"] = self.targets_of(ref, frustum, transforms, rectify, f.get("camera_targets"))
-        sem, vis = f["semantic"], f["visibility"]
-        if self.factor > 1:
-            sem, vis = downsample_labels(sem, vis, self.factor, priority=self.priority, num_classes=len(self.class_names))
-        if sem.shape != self.grid.shape:
-            raise DataError(f"{FrameFiles(ref.dir).semantic}: {sem.shape} after pooling, model grid is {self.grid.shape}")
+        sem, vis = self.pooled_labels(ref, f)
         return {
             **sample,
             "images": images,
             "semantic": torch.from_numpy(sem.astype(np.int64)),
-            "visibility": torch.from_numpy(np.ascontiguousarray(vis, dtype=np.float32)),
+            "visibility": torch.from_numpy(np.array(vis, dtype=np.float32)),  # a copy: `vis` may be the cache's
             "index": i,
         }
 

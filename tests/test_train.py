@@ -363,6 +363,28 @@ def test_a_sample_keyed_by_epoch_is_that_epochs_sample(real_tiny, tmp_path):
     assert not torch.equal(a["images"], c["images"])  # another epoch, another augmentation
 
 
+def test_a_cached_frame_gives_the_samples_of_a_fresh_read(real_tiny, tmp_path):
+    """data.cache_mb: frames decoded (labels pooled) once per loader process; a sample from the
+    cache is the sample from the files, every key, and a cache too small keeps nothing."""
+    from model.config import load_config
+    from model.data import BevDataset
+
+    cfg = load_config(write_config(tmp_path / "c.yaml", real_tiny, augment={"enabled": True}, data={"grid": label_grid(real_tiny)}))
+    keys = [(2, 0), (2, 1), (5, 1), (5, 0)]
+    none = BevDataset(real_tiny, "train", {**cfg, "data": {**cfg["data"], "cache_mb": 0}}, train=True)
+    want = [none[k] for k in keys]
+    assert not none.cache
+    ds = BevDataset(real_tiny, "train", cfg, train=True)
+    for _ in range(2):  # the first read fills the cache, the second reads from it
+        got = [ds[k] for k in keys]
+        assert sorted(ds.cache) == [0, 1]
+        for g, w in zip(got, want):
+            assert g.keys() == w.keys()
+            assert all(torch.equal(g[k], w[k]) if torch.is_tensor(w[k]) else g[k] == w[k] for k in w)
+    got[0]["visibility"] += 1  # a sample's labels are its own, not the cache's
+    assert torch.equal(ds[keys[0]]["visibility"], want[0]["visibility"])
+
+
 def test_images_finished_on_the_device_are_the_workers_images(real_tiny, tmp_path):
     """device_images (a GPU run): samples leave the loader as uint8 with their jitter's draws, and
     `finish` on the batch gives the images the workers would have made (same draws, same steps)."""
