@@ -140,6 +140,31 @@ def test_noise_grows_with_the_analog_gain_not_the_exposure_time(front):
     assert loud > 2 * quiet > 0
 
 
+def test_noise_reduction_smooths_the_grain_and_keeps_edges(front):
+    """The ISP's noise reduction: on a flat grey the grain falls to well under its raw size; an edge
+    of 80 grey levels (far above the threshold) stays as sharp as without it."""
+    _, theta, pp = front
+    img = np.full(theta.shape + (3,), 110, np.uint8)
+    img[:, 48:] = 190
+    p = {"shot_gain": 0.0004, "read_sd": 0.0015, "noise_seed": 3, "analog_gain": 2.0}
+    raw = sensor.apply(img, p, theta, pp, exposed=True).astype(float)
+    nr = sensor.apply(img, dict(p, nr_strength=2.5), theta, pp, exposed=True).astype(float)
+    flat = np.s_[5:-5, 5:40, 1]
+    assert nr[flat].std() < 0.6 * raw[flat].std() and raw[flat].std() > 1.5
+    assert abs(nr[flat].mean() - raw[flat].mean()) < 0.5  # no shift of the grey
+    step = lambda x: x[5:-5, 49:52, 1].mean() - x[5:-5, 44:47, 1].mean()  # noqa: E731
+    assert step(nr) > 0.95 * step(raw) > 60
+    # the threshold follows the noise the gain gives: twice the gain, at least sqrt(2) x the sd (shot
+    # noise grows with its square root, read noise with the gain)
+    assert sensor.noise_sd_srgb(dict(p, analog_gain=4.0)) > 1.4 * sensor.noise_sd_srgb(p)
+
+
+def test_noise_reduction_is_drawn_only_with_the_noise():
+    assert "nr_strength" in sensor.draw(ALL, np.random.default_rng(1))
+    assert "nr_strength" not in sensor.draw(dict(ALL, noise=False), np.random.default_rng(1))
+    assert "nr_strength" not in sensor.draw(dict(ALL, noise_reduction=False), np.random.default_rng(1))
+
+
 def _cfg(tmp_path, render):
     p = tmp_path / "cfg.yaml"
     p.write_text(yaml.safe_dump({"rig": "configs/rigs/default.yaml", "render": render,

@@ -13,6 +13,7 @@ drawn once per frame and camera from the frame's seed (so a frame renders to the
 | chromatic_aberration | lateral: red and blue scaled about the principal point | +-k, k uniform 0.0005-0.002 |
 | sharpen | the camera's edge enhancement (unsharp mask, radius 1 px) | amount uniform 0.2-0.6 |
 | noise | shot and read noise, in linear light, amplified by the analog gain (a longer exposure gathers more light, a gain only amplifies: grainy at night) | shot gain uniform 0.0001-0.0004 (a full well of 2,500-10,000 electrons), read sd uniform 0.0005-0.0015 |
+| noise_reduction | the ISP's spatial noise reduction after the sensor: an edge-preserving (bilateral) filter in the 8-bit image's gamma, whose grey-level threshold is a multiple of the noise the analog gain gives a mid-grey (what a camera's ISP is tuned to per gain) | multiple uniform 1.5-3, over 1 px (5 x 5) |
 | jpeg | JPEG compression of the stream | quality uniform 70-95 (off unless asked) |
 | motion_blur | the ego's and the traffic's motion during the exposure, which the auto-exposure lengthens in the dark | the exposure's time (none drawn) |
 
@@ -44,7 +45,8 @@ import numpy as np
 
 from common.schema import Bool, Section
 
-EFFECTS = ("exposure", "hdr", "white_balance", "vignetting", "chromatic_aberration", "sharpen", "noise", "jpeg", "motion_blur")
+EFFECTS = ("exposure", "hdr", "white_balance", "vignetting", "chromatic_aberration", "sharpen", "noise", "noise_reduction", "jpeg",
+           "motion_blur")
 EXPOSURE_MS = (0.1, 33.0)  # the auto-exposure's exposure times: 1 ms at a log-average of 0.18, 1/30 s at most
 ANALOG_GAIN = (1.0, 8.0)  # the sensor's analog gain, raised only once the exposure is at its longest
 KEY = 0.18  # the log-average luminance the auto-exposure aims at in daylight
@@ -75,6 +77,9 @@ def draw(switches: dict, rng: np.random.Generator) -> dict:
             "chromatic_aberration": ["chromatic_aberration"], "sharpen": ["sharpen"],
             "noise": ["shot_gain", "read_sd", "noise_seed"], "jpeg": ["jpeg_quality"]}
     out = {k: p[k] for e, ks in keep.items() if switches.get(e) for k in ks}
+    nr = float(1.5 + 1.5 * rng.random())  # drawn after the rest: adding it left their values as they were
+    if switches.get("noise_reduction") and switches.get("noise"):
+        out["nr_strength"] = nr
     if switches.get("motion_blur"):
         out["motion_blur"] = True  # the exposure time follows from the light (apply), nothing drawn
     return out
@@ -184,6 +189,19 @@ def local_tone(lin: np.ndarray, compression: float) -> np.ndarray:
     return lin * np.exp2((compression - 1.0) * over)[..., None]
 
 
+NR_DIAMETER, NR_SIGMA_PX = 5, 1.0  # the noise reduction's window (pixels) and its spatial sigma
+
+
+def noise_sd_srgb(params: dict, grey: float = KEY) -> float:
+    """The sensor noise's standard deviation at a mid-grey (`grey`, linear) in the 8-bit image's
+    gamma (0-1): shot and read noise at the analog gain, through the sRGB curve's slope there (in
+    that gamma the shot noise is nearly the same at every grey, which is what lets one threshold
+    serve the whole image)."""
+    a = params.get("analog_gain", 1.0)
+    sd = np.sqrt(params["shot_gain"] * a * grey + (params["read_sd"] * a) ** 2)
+    return float(sd * 1.055 / 2.4 * grey ** (1 / 2.4 - 1))
+
+
 def log_average(lin: np.ndarray):
     """The log-average luminance of a linear image (what an auto-exposure meters)."""
     lum = lin @ LUMA
@@ -231,7 +249,10 @@ def apply(img: np.ndarray, params: dict, theta: np.ndarray, principal, flow: np.
         a = params.get("analog_gain", 1.0)
         sd = np.sqrt(params["shot_gain"] * a * np.clip(lin, 0, None) + (params["read_sd"] * a) ** 2)
         lin = lin + sd * rng.standard_normal(lin.shape, dtype=np.float32)
-    out = np.rint(_to_srgb(lin) * 255).astype(np.uint8)
+    srgb = _to_srgb(lin).astype(np.float32)
+    if "nr_strength" in params and "shot_gain" in params:
+        srgb = cv2.bilateralFilter(srgb, NR_DIAMETER, params["nr_strength"] * noise_sd_srgb(params), NR_SIGMA_PX)
+    out = np.rint(np.clip(srgb, 0, 1) * 255).astype(np.uint8)
     if "jpeg_quality" in params:
         ok, buf = cv2.imencode(".jpg", out[..., ::-1], [cv2.IMWRITE_JPEG_QUALITY, params["jpeg_quality"]])
         out = cv2.imdecode(buf, cv2.IMREAD_COLOR)[..., ::-1].copy()
