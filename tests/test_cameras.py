@@ -275,3 +275,13 @@ def test_polynomial_domain_stops_where_the_lens_folds_back():
     t = np.array([cam.theta_max - 1e-3, cam.theta_max + 1e-3])
     _, valid = cam.project(np.stack([np.sin(t), 0 * t, np.cos(t)], -1))
     assert valid.tolist() == [True, False]
+
+
+def test_the_kept_domain_limit_is_each_polynomials_own():
+    """The domain limit is kept per coefficient tuple (a camera's resized and cropped copies check
+    the same polynomial again): a copy finds its camera's limit, another polynomial its own."""
+    a = camera_from_dict(dict(BASE, model="opencv_fisheye", k=[-0.3, 0, 0, 0]))
+    assert a.resized(a.width // 2, a.height // 2).theta_max == a.theta_max
+    assert a.cropped(3, 2, 20, 10).theta_max == a.theta_max
+    b = camera_from_dict(dict(BASE, model="opencv_fisheye", k=[-0.2, 0, 0, 0]))
+    assert b.theta_max == pytest.approx(1 / math.sqrt(0.6), abs=1e-9) != a.theta_max
