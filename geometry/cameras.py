@@ -116,8 +116,7 @@ def _monotonic_limit(coeffs, upper: float, cap: float = math.inf) -> float:
 @functools.lru_cache(maxsize=1024)
 def _monotonic_limit_of(coeffs: tuple, upper: float, cap: float) -> float:
     """_monotonic_limit for a tuple of coefficients, kept: every resized, scaled or cropped copy of
-    a camera checks the same polynomial again (28 copies per training sample; the roots were 15 %
-    of the data loader's work per sample)."""
+    a camera checks the same polynomial again (28 copies per training sample)."""
     p = np.polynomial.Polynomial(np.asarray(coeffs, dtype=np.float64))
     limit = upper
     for q in (p.deriv(), p - cap if math.isfinite(cap) else None):
