@@ -159,6 +159,22 @@ def test_noise_reduction_smooths_the_grain_and_keeps_edges(front):
     assert sensor.noise_sd_srgb(dict(p, analog_gain=4.0)) > 1.4 * sensor.noise_sd_srgb(p)
 
 
+def test_auto_white_balance_greys_a_cast_and_ignores_coloured_surfaces(front):
+    """A street under warm lamps (its greys 10 % red, 10 % short of blue, as our night frames) comes
+    out grey; a large saturated green (grass) beside it neither counts nor turns magenta."""
+    _, theta, pp = front
+    lin = np.zeros(theta.shape + (3,), np.float32)
+    lin[:, :48] = np.array([0.11, 0.1, 0.09]) * np.linspace(0.5, 1.5, theta.shape[0])[:, None, None]  # warm greys
+    lin[:, 48:] = (0.02, 0.15, 0.02)  # grass
+    img = np.rint(sensor._to_srgb(lin) * 255).astype(np.uint8)
+    out = sensor._to_linear(sensor.apply(img, {"wb_gains": [1.0, 1.0, 1.0]}, theta, pp).astype(np.float32) / 255)
+    street = out[:, :48].reshape(-1, 3).mean(0)
+    assert street[0] / street[1] == pytest.approx(1.0, abs=0.03) and street[2] / street[1] == pytest.approx(1.0, abs=0.03)
+    grass = out[:, 48:].reshape(-1, 3).mean(0)
+    assert grass[1] > 5 * max(grass[0], grass[2])  # still green, its own balance untouched but for the street's gains
+    assert sensor.grey_world(np.full((4, 4, 3), 0.3, np.float32)).tolist() == [1.0, 1.0, 1.0]  # too few pixels: none
+
+
 def test_noise_reduction_is_drawn_only_with_the_noise():
     assert "nr_strength" in sensor.draw(ALL, np.random.default_rng(1))
     assert "nr_strength" not in sensor.draw(dict(ALL, noise=False), np.random.default_rng(1))

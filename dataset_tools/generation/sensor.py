@@ -8,7 +8,7 @@ drawn once per frame and camera from the frame's seed (so a frame renders to the
 |---|---|---|
 | exposure | auto-exposure: the scene's log-average luminance brought to 0.18 (beyond 4x daylight's exposure, the square root of what is missing: night stays darker than day) by the exposure time (0.1-33 ms), then by analog gain (1-8x), then an error in stops | error normal, sd 0.2 (clipped to +-0.5) |
 | hdr | the high-dynamic-range sensor's local tone mapping: the image's large-scale log luminance above 0.18 compressed by a factor, its detail kept (what keeps a car lit by headlights, or a lamp, from clipping to white) | compression uniform 0.25-0.4 |
-| white_balance | red and blue gains against green | normal around 1, sd 0.03 each |
+| white_balance | the auto white balance: red and blue gains that make the image's near-grey pixels grey on average (grey world over unsaturated, unclipped pixels; each gain within 0.75-1.33), times an error | error gains normal around 1, sd 0.03 each |
 | vignetting | light falloff, 1 - s (theta / theta_max)^2 by ray angle | s uniform 0.2-0.45 |
 | chromatic_aberration | lateral: red and blue scaled about the principal point | +-k, k uniform 0.0005-0.002 |
 | sharpen | the camera's edge enhancement (unsharp mask, radius 1 px) | amount uniform 0.2-0.6 |
@@ -202,6 +202,22 @@ def noise_sd_srgb(params: dict, grey: float = KEY) -> float:
     return float(sd * 1.055 / 2.4 * grey ** (1 / 2.4 - 1))
 
 
+AWB_GAINS = (0.75, 1.33)  # the auto white balance's range of red and blue gains
+
+
+def grey_world(lin: np.ndarray) -> np.ndarray:
+    """The auto white balance's gains (3,) for a linear image (H, W, 3): green over each channel's
+    mean on the near-grey pixels (max - min under 30 % of max, neither black nor clipped), so that
+    they come out grey on average; ones where fewer than 100 pixels qualify."""
+    x = lin.reshape(-1, 3)
+    mx, mn = x.max(1), x.min(1)
+    ok = (mx > 0.01) & (mx < 0.9) & (mx - mn < 0.3 * mx)
+    if ok.sum() < 100:
+        return np.ones(3, np.float32)
+    m = x[ok].mean(0)
+    return np.clip(m[1] / np.maximum(m, 1e-6), *AWB_GAINS).astype(np.float32)
+
+
 def log_average(lin: np.ndarray):
     """The log-average luminance of a linear image (what an auto-exposure meters)."""
     lum = lin @ LUMA
@@ -228,7 +244,8 @@ def apply(img: np.ndarray, params: dict, theta: np.ndarray, principal, flow: np.
     lin = lin * g
     if "hdr_compression" in params and not exposed:  # the renderer compressed its light itself
         lin = local_tone(lin, params["hdr_compression"])
-    lin = lin * np.asarray(params.get("wb_gains", [1, 1, 1]), np.float32)
+    if "wb_gains" in params:
+        lin = lin * grey_world(lin) * np.asarray(params["wb_gains"], np.float32)
     if "vignetting" in params:
         t = np.nan_to_num(theta / np.nanmax(theta), nan=1.0)
         lin = lin * (1 - params["vignetting"] * t * t)[..., None]
