@@ -149,6 +149,11 @@ def _to_srgb(x):
     return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055)
 
 
+def _srgb_slope(x: float) -> float:
+    """The slope of `_to_srgb` at a linear value x above its linear toe."""
+    return 1.055 / 2.4 * x ** (1 / 2.4 - 1)
+
+
 def meter(lin: np.ndarray, params: dict) -> float:
     """The auto-exposure of a linear image: sets `params["exposure_ms"]` (with motion blur or
     exposure) and `params["analog_gain"]` (with exposure), and returns the gain the image is to be
@@ -199,7 +204,7 @@ def noise_sd_srgb(params: dict, grey: float = KEY) -> float:
     serve the whole image)."""
     a = params.get("analog_gain", 1.0)
     sd = np.sqrt(params["shot_gain"] * a * grey + (params["read_sd"] * a) ** 2)
-    return float(sd * 1.055 / 2.4 * grey ** (1 / 2.4 - 1))
+    return float(sd * _srgb_slope(grey))
 
 
 AWB_GAINS = (0.75, 1.33)  # the auto white balance's range of red and blue gains
