@@ -151,15 +151,16 @@ def _face_materials(style, u, x, belt, top, length):
         mats[side_glass, j] = "car_glass"
         frame = cabin & ~side_glass & ~sloped & ~at_pillar & (um > g0 - 0.03) & (um < g1 + 0.03)
         mats[frame, j] = "trim"  # window frames
-    for j in (6, 7, 8):  # windscreen and rear window
-        mats[sloped, j] = "car_glass"
+    # windscreen and rear window across the roof (band 7); the corner bands from the glass top to the
+    # roof edge beside them stay paint: the A- and C-pillars that frame the glass
+    mats[sloped, 7] = "car_glass"
     if "bed" in s:
         b0, b1 = s["bed"]
         bed = (um > b0) & (um < b1)
         back = (um > b1) & (um < b1 + 0.04) & (slope > 0.35) & (g_max > 0.12)  # the cab's back wall: its window
         for j in (6, 7, 8):
             mats[bed, j] = "trim"
-            mats[back, j] = "car_glass"
+        mats[back, 7] = "car_glass"  # between pillars, as the windscreen
     return mats
 
 

@@ -185,3 +185,32 @@ def test_primitives_face_outward(axis):
     for m in (MeshData().cylinder((1, 2, 0), 0.5, 2, axis=axis), MeshData().box((1, 2, 0), (2, 1, 1)),
               MeshData().tube((0, 0, 0), (0, 0, 2), 0.5), MeshData().ellipsoid((0, 0, 1), (1, 1, 1))):
         assert _signed_volume(m.vertices, m.faces) > 0
+
+
+@pytest.mark.parametrize("kind,style", STYLES)
+def test_windscreen_and_rear_window_are_framed_by_pillars(kind, style):
+    """The windscreen and the rear window lie between body-coloured pillars: beside each of their
+    faces, along the length, a paint face rises as high as the glass. (Glass across the whole top
+    of the body, down to the side windows' line, read as a dark band, not a window.)"""
+    l, w, h = assets.VEHICLE_SIZES[kind][0]
+    m = assets.vehicle_mesh(kind, (l, w, h), np.random.default_rng(0), style)
+    v = m.vertices
+    edges: dict = {}  # longitudinal edge (two vertices at different x) -> materials of its faces
+    faces = []
+    for f, n in zip(m.faces, m.mats):
+        faces.append((f, n))
+        for a, b in zip(f, f[1:] + f[:1]):
+            if abs(v[a, 0] - v[b, 0]) > 1e-6:
+                edges.setdefault(frozenset((a, b)), []).append((n, v[list(f), 2].max()))
+    sloped = 0
+    for f, n in faces:
+        p = v[list(f)]
+        nrm = sum(np.cross(p[k], p[(k + 1) % len(f)]) for k in range(len(f)))
+        if n != "car_glass" or abs(nrm[0]) < 0.3 * np.linalg.norm(nrm) or np.abs(p[:, 1]).max() > 0.45 * w:
+            continue  # side windows, mirrors
+        sloped += 1
+        top = p[:, 2].max()
+        beside = [(mat, z) for a, b in zip(f, f[1:] + f[:1]) for mat, z in edges.get(frozenset((a, b)), [])]
+        assert any(mat == "car_paint" and z >= top - 1e-6 for mat, z in beside), \
+            f"{style}: sloped glass at x={p[:, 0].mean():.2f} without a pillar beside it"
+    assert sloped, f"{style}: no windscreen"
