@@ -6,7 +6,8 @@ A body is a loft: one ring of 16 points per station along the length, the ring's
 per-style profiles of the station's position u (0 at the rear, 1 at the front): the bottom (raised
 over each wheel into an arch), the beltline (bonnet, boot deck and door tops), the top of the
 glasshouse and the body's half-width. The material of every face follows from where it is: side
-glass between the pillars, sloped glass where the roof line falls steeply (windscreen, rear window),
+glass between the pillars, sloped glass where the roof line falls steeply (windscreen, rear window:
+across the roof, between the corner pillars),
 paint elsewhere, a dark liner under the arches. Everything stays inside the vehicle's (length, width,
 height) box, in its own frame: x forward, y left, origin on the ground at the box centre.
 """
