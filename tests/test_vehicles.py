@@ -195,10 +195,9 @@ def test_windscreen_and_rear_window_are_framed_by_pillars(kind, style):
     l, w, h = assets.VEHICLE_SIZES[kind][0]
     m = assets.vehicle_mesh(kind, (l, w, h), np.random.default_rng(0), style)
     v = m.vertices
-    edges: dict = {}  # longitudinal edge (two vertices at different x) -> materials of its faces
-    faces = []
-    for f, n in zip(m.faces, m.mats):
-        faces.append((f, n))
+    faces = list(zip(m.faces, m.mats))
+    edges: dict = {}  # longitudinal edge (two vertices at different x) -> (material, top z) of its faces
+    for f, n in faces:
         for a, b in zip(f, f[1:] + f[:1]):
             if abs(v[a, 0] - v[b, 0]) > 1e-6:
                 edges.setdefault(frozenset((a, b)), []).append((n, v[list(f), 2].max()))
