@@ -14,6 +14,12 @@ STYLES = [(kind, style) for kind, styles in KIND_STYLES.items() for style in sty
 PARTS = {"car_paint", "car_glass", "tyre", "rim", "headlight", "taillight", "reverse_lamp", "plate", "grille", "trim"}
 
 
+
+def _normal(p: np.ndarray) -> np.ndarray:
+    """A polygon's (unnormalised) normal from its vertices in order (Newell's sum): outward for a
+    face wound outward."""
+    return sum(np.cross(p[k], p[(k + 1) % len(p)]) for k in range(len(p)))
+
 @pytest.mark.parametrize("kind,style", STYLES)
 def test_every_style_fills_its_box_with_the_parts_of_a_vehicle(kind, style):
     rng = np.random.default_rng(3)
@@ -60,7 +66,7 @@ def test_a_minibus_is_glazed_along_its_sides_and_a_panel_van_only_at_the_cab():
         xs = []
         for f, n in zip(m.faces, m.mats):
             p = m.vertices[list(f)]
-            nrm = sum(np.cross(p[k], p[(k + 1) % len(f)]) for k in range(len(f)))
+            nrm = _normal(p)
             if n == "car_glass" and abs(nrm[1]) > 2 * max(abs(nrm[0]), abs(nrm[2])) and np.ptp(p[:, 0]) > 0.01:
                 xs.append(p[:, 0].mean())
         return np.array(xs)
@@ -123,7 +129,7 @@ def test_a_car_rear_is_laid_out_as_real_ones(style):
     flank, rear, high, seams = {1: 0, -1: 0}, [], [], 0
     for f, n in zip(m.faces, m.mats):
         p = v[list(f)]
-        nrm = sum(np.cross(p[k], p[(k + 1) % len(f)]) for k in range(len(f)))
+        nrm = _normal(p)
         if n == "taillight" and np.ptp(p[:, 0]) > 0.04 and abs(nrm[1]) > abs(nrm[2]):  # a strip along a flank
             side = int(np.sign(p[:, 1].mean()))
             assert np.sign(nrm[1]) == side, "a wrapped lamp faces into the body"
@@ -170,7 +176,7 @@ def test_every_face_of_a_vehicle_faces_outward(kind, style):
         wv = w.vertices
         for f, n in zip(w.faces, w.mats):
             p = wv[list(f)]
-            nrm = sum(np.cross(p[k], p[(k + 1) % len(f)]) for k in range(len(f)))
+            nrm = _normal(p)
             radial = np.array([p[:, 0].mean(), 0.0, p[:, 2].mean() - 0.33])
             if n == "tyre" and np.linalg.norm(radial) > 0.32:  # the tread
                 assert np.dot(nrm, radial) > 0, f"side {side}: the tread faces the axle"
@@ -204,7 +210,7 @@ def test_windscreen_and_rear_window_are_framed_by_pillars(kind, style):
     sloped = 0
     for f, n in faces:
         p = v[list(f)]
-        nrm = sum(np.cross(p[k], p[(k + 1) % len(f)]) for k in range(len(f)))
+        nrm = _normal(p)
         if n != "car_glass" or abs(nrm[0]) < 0.3 * np.linalg.norm(nrm) or np.abs(p[:, 1]).max() > 0.45 * w:
             continue  # side windows, mirrors
         sloped += 1
