@@ -7,7 +7,8 @@ per-style profiles of the station's position u (0 at the rear, 1 at the front): 
 over each wheel into an arch), the beltline (bonnet, boot deck and door tops), the top of the
 glasshouse and the body's half-width. The material of every face follows from where it is: side
 glass between the pillars, sloped glass where the roof line falls steeply (windscreen, rear window:
-across the roof, between the corner pillars), paint elsewhere, a dark liner under the arches.
+across the roof, between the corner pillars, under a rail at the roof's edge), paint elsewhere, a
+dark liner under the arches.
 Everything stays inside the vehicle's (length, width, height) box, in its own frame: x forward, y
 left, origin on the ground at the box centre.
 """
@@ -60,6 +61,7 @@ KIND_STYLES = {"car": ("sedan", "hatchback", "wagon"), "suv": ("suv", "pickup"),
 BOXY = ("bus", "truck_cab", "van", "minibus")  # upright sides and a flat front
 BELT = {name: max(v for _, v in s["belt"]) for name, s in STYLES.items()}  # highest beltline (ego cabin cut)
 
+HEADER = 0.05  # m: the body-coloured rail across the roof's edge above a windscreen or rear window
 SMOOTH_ANGLE = 35.0  # degrees: edges sharper than this stay sharp, the rest is shaded smooth
 RING = 16  # points per station
 SIDE = 8  # per side: inner bottom, arch edge, rocker, door, shoulder, belt, glass top, roof edge
@@ -153,8 +155,10 @@ def _face_materials(style, u, x, belt, top, length):
         frame = cabin & ~side_glass & ~sloped & ~at_pillar & (um > g0 - 0.03) & (um < g1 + 0.03)
         mats[frame, j] = "trim"  # window frames
     # windscreen and rear window across the roof (band 7); the corner bands from the glass top to the
-    # roof edge beside them stay paint: the A- and C-pillars that frame the glass
-    mats[sloped, 7] = "car_glass"
+    # roof edge beside them stay paint: the A- and C-pillars that frame the glass; and the top
+    # HEADER of the slope too: the roof's rail, under which real windscreens and rear windows stop
+    header = np.minimum(top[:-1], top[1:]) >= top.max() - HEADER - 1e-6
+    mats[sloped & ~header, 7] = "car_glass"
     if "bed" in s:
         b0, b1 = s["bed"]
         bed = (um > b0) & (um < b1)
@@ -346,6 +350,12 @@ def body(m: MeshData, style, size, wheel_r, axles, x0=None, rear_details=True):
     local_axles = [a - off for a in axles]
     s = STYLES[style]
     extra = [v for pts in (s["belt"], s["roof"]) for v, _ in pts]
+    # a station where the roof line crosses HEADER under its top (the lower edge of the roof's rail)
+    r = np.array(s["roof"], float)
+    zc = r[:, 1].max() - HEADER / h
+    for (u0, v0), (u1, v1) in zip(r[:-1], r[1:]):
+        if (v0 - zc) * (v1 - zc) < 0:
+            extra.append(u0 + (zc - v0) / (v1 - v0) * (u1 - u0))
     if not isinstance(s["pillars"], str):  # a pillar's edges are stations
         extra += [p + d / l for p in s["pillars"] for d in (-0.05, 0.05)]
     u = _stations(l, local_axles, arch_r, extra)

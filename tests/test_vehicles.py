@@ -219,3 +219,27 @@ def test_windscreen_and_rear_window_are_framed_by_pillars(kind, style):
         assert any(mat == "car_paint" and z >= top - 1e-6 for mat, z in beside), \
             f"{style}: sloped glass at x={p[:, 0].mean():.2f} without a pillar beside it"
     assert sloped, f"{style}: no windscreen"
+
+
+@pytest.mark.parametrize("kind,style", [ks for ks in STYLES if ks[1] not in ("bus", "truck_cab")])
+def test_windscreen_and_rear_window_stop_under_the_roof_rail(kind, style):
+    """The glass of a windscreen or rear window ends HEADER under the roof, a body-coloured rail
+    above it across the roof's edge, as on real cars. A bus's or a truck's near-upright windscreen
+    rises to its roof: a rail that fine falls between its stations."""
+    from blender_scripts.vehicles import HEADER
+
+    l, w, h = assets.VEHICLE_SIZES[kind][0]
+    m = assets.vehicle_mesh(kind, (l, w, h), np.random.default_rng(0), style)
+    v = m.vertices
+    body = np.concatenate([v[list(f)] for f, n in zip(m.faces, m.mats) if n == "car_paint"])
+    roof = body[:, 2].max()
+    rails = 0
+    for f, n in zip(m.faces, m.mats):
+        p = v[list(f)]
+        nrm = _normal(p)
+        if abs(nrm[0]) < 0.3 * np.linalg.norm(nrm) or np.abs(p[:, 1]).max() > 0.45 * w:
+            continue  # not across the front or back of the glasshouse
+        if n == "car_glass" and np.ptp(p[:, 0]) > 1e-6:
+            assert p[:, 2].max() <= roof - HEADER + 1e-6, f"{style}: glass at x={p[:, 0].mean():.2f} up to the roof"
+        rails += n == "car_paint" and p[:, 2].min() >= roof - HEADER - 1e-6 and np.ptp(p[:, 1]) > 0.5 * w
+    assert rails >= 1, f"{style}: no roof rail above the glass"
