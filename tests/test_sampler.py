@@ -66,9 +66,10 @@ def test_many_sampled_recipes_of_every_family_build():
     """About 1 in 400 sampled urban blocks (a short block of a wide street with a bridge)
     failed in the layout builder (`min() arg is an empty sequence`): invisible in 30 recipes, certain
     in thousands. The sampler now draws only what builds. Here 200 recipes of every family and 150
-    urban blocks (the failing family; 45 s on an idle 2-core machine, 2026-11-28, since the layouts grew
-    roadside detail); SAMPLED_LAYOUTS=5000 for the issue's 5,000 (measured 2026-11-25: 5,000 of every family and 1,666 urban blocks, all built, in 333 s at nice 19 on
-    the shared 2-core machine)."""
+    urban blocks (the failing family; 45 s on an idle 2-core machine, 2026-11-28, since the layouts
+    grew roadside detail); SAMPLED_LAYOUTS=5000 for the issue's 5,000 (measured 2026-11-25: 5,000 of
+    every family and 1,666 urban blocks, all built, in 333 s at nice 19 on the shared 2-core
+    machine)."""
     import os
     import time
 
