@@ -8,9 +8,8 @@ over each wheel into an arch), the beltline (bonnet, boot deck and door tops), t
 glasshouse and the body's half-width. The material of every face follows from where it is: side
 glass between the pillars, sloped glass where the roof line falls steeply (windscreen, rear window:
 across the roof, between the corner pillars, under a rail at the roof's edge), paint elsewhere, a
-dark liner under the arches.
-Everything stays inside the vehicle's (length, width, height) box, in its own frame: x forward, y
-left, origin on the ground at the box centre.
+dark liner under the arches. Everything stays inside the vehicle's (length, width, height) box, in
+its own frame: x forward, y left, origin on the ground at the box centre.
 """
 
 from __future__ import annotations

@@ -14,11 +14,11 @@ STYLES = [(kind, style) for kind, styles in KIND_STYLES.items() for style in sty
 PARTS = {"car_paint", "car_glass", "tyre", "rim", "headlight", "taillight", "reverse_lamp", "plate", "grille", "trim"}
 
 
-
 def _normal(p: np.ndarray) -> np.ndarray:
     """A polygon's (unnormalised) normal from its vertices in order (Newell's sum): outward for a
     face wound outward."""
     return sum(np.cross(p[k], p[(k + 1) % len(p)]) for k in range(len(p)))
+
 
 @pytest.mark.parametrize("kind,style", STYLES)
 def test_every_style_fills_its_box_with_the_parts_of_a_vehicle(kind, style):
