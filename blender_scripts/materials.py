@@ -380,9 +380,9 @@ def _vehicle_materials(make, night: bool) -> None:
         _emission(b, (1.0, 0.95, 0.85), 40.0)
         _lights_switch(m, b)
     make("reverse_lamp", LAMP_LENS, rough=0.12, metallic=0.7)[1].inputs["Coat Weight"].default_value = 1.0  # never lit
-    # a bright red lens (daylight dev vehicles: red 0.8 +0.005 steady p, 0.18 -0.007, against 0.45;
-    # docs/rendering.md, "Kept: brighter tail lamps")
-    m, b = make("taillight", (0.8, 0.03, 0.025), rough=0.1)
+    # a bright red lens over a chrome reflector, as the headlights (docs/rendering.md, "Kept: brighter
+    # tail lamps": red 0.8 against 0.45 and 0.18; "Kept: tail lamps over a reflector")
+    m, b = make("taillight", (0.8, 0.03, 0.025), rough=0.12, metallic=0.7)
     b.inputs["Coat Weight"].default_value = 1.0
     if night:
         _emission(b, (1.0, 0.05, 0.02), 10.0)
