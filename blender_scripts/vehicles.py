@@ -50,8 +50,9 @@ STYLES = {
     "minibus": dict(belt=[(0, .45), (.03, .47), (.80, .47), (.95, .42), (1, .36)],
                     roof=[(0, .52), (.02, 1.0), (.72, 1.0), (.86, .50)], glass=(.04, .80),
                     pillars=(.24, .45, .64), panel_seams=(.45, .64)),
+    # a city bus: its rear window over the engine bay, in the top third of its rear
     "bus": dict(belt=[(0, .36), (.01, .38), (.99, .38), (1, .33)],
-                roof=[(0, .45), (.012, .97), (.983, .97), (1, .40)], glass=(.02, .97), pillars="every 1.5 m"),
+                roof=[(0, .62), (.012, .97), (.983, .97), (1, .40)], glass=(.02, .97), pillars="every 1.5 m"),
     "truck_cab": dict(belt=[(0, .40), (.05, .45), (.90, .45), (1, .36)],
                       roof=[(0, .97), (.88, .97), (1, .40)], glass=(.55, .88), pillars=()),
 }

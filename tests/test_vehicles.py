@@ -243,3 +243,16 @@ def test_windscreen_and_rear_window_stop_under_the_roof_rail(kind, style):
             assert p[:, 2].max() <= roof - HEADER + 1e-6, f"{style}: glass at x={p[:, 0].mean():.2f} up to the roof"
         rails += n == "car_paint" and p[:, 2].min() >= roof - HEADER - 1e-6 and np.ptp(p[:, 1]) > 0.5 * w
     assert rails >= 1, f"{style}: no roof rail above the glass"
+
+
+def test_a_bus_rear_window_sits_over_its_engine_bay():
+    """A city bus's rear window is in the top of its rear, paint (the engine bay) under it: a rear
+    glazed down to the beltline read as a second windscreen."""
+    l, w, h = assets.VEHICLE_SIZES["bus"][0]
+    m = assets.vehicle_mesh("bus", (l, w, h), np.random.default_rng(0), "bus")
+    v = m.vertices
+    rear = [v[list(f)] for f, n in zip(m.faces, m.mats)
+            if n == "car_glass" and v[list(f), 0].max() < -l / 2 + 0.3 and _normal(v[list(f)])[0] < 0]
+    assert rear, "no rear window"
+    z = np.concatenate(rear)[:, 2]
+    assert z.min() > 0.55 * h and z.max() > 0.9 * h, f"the rear window spans {z.min():.2f}-{z.max():.2f} m of {h:.2f}"
