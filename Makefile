@@ -52,7 +52,7 @@ bench: setup
 	$(PYTHON) -m bench.run
 
 dataset: setup
-	$(PYTHON) -m dataset_tools dataset --config configs/dataset/$(PRESET).yaml --out $(DATA) --backend $(BACKEND) $(if $(WORKERS),--workers $(WORKERS))
+	$(PYTHON) -m dataset_tools dataset --config configs/dataset/$(PRESET).yaml --out $(DATA) --backend $(BACKEND) $(if $(WORKERS),--workers $(WORKERS)) $(if $(RERENDER),--rerender-changed)
 
 train: setup
 	$(PYTHON) train.py --config $(CONFIG) --out $(RUN)

@@ -33,6 +33,8 @@ def main(argv=None) -> int:
     add_backend_args(ap)
     ap.add_argument("--scenes", nargs="+", default=None, metavar="NAME",
                     help="render only these scenes of the config (e.g. one sampled scene again)")
+    ap.add_argument("--rerender-changed", action="store_true",
+                    help="render again the scenes of --out whose recipe in the config changed since they were rendered")
     ap.add_argument("--no-progress", action="store_true")
     a = ap.parse_args(argv)
     shard = parse_shard(a.shard)
@@ -47,7 +49,8 @@ def main(argv=None) -> int:
     out = output_dir(a.out)
     with hold_lock(out):  # a second generate on this --out is refused, naming the holder
         return print_problems(render(cfg, out, shard, a.workers, progress=not a.no_progress, backend=a.backend,
-                                     address=a.address, threads=a.threads))
+                                     address=a.address, threads=a.threads,
+                                     rerender_changed=a.rerender_changed))
 
 
 if __name__ == "__main__":

@@ -60,7 +60,7 @@ def contact_sheets(out: Path) -> list[str]:
 
 def build_dataset(cfg: dict | None, out, backend: str = "local", workers: int | None = None,
                   address: str | None = None, threads: int | None = None, parts=None, progress: bool = True,
-                  config_path=None) -> int:
+                  config_path=None, rerender_changed: bool = False) -> int:
     """Render `cfg` (load_config) into `out` (or merge `parts` into it), then draw the contact sheets,
     fuse, audit and report, and write the dataset card (naming `config_path`, the config's file);
     the exit code. `cfg` may be None with `parts` (no check that every frame is there; default
@@ -72,7 +72,7 @@ def build_dataset(cfg: dict | None, out, backend: str = "local", workers: int | 
     cores = (workers if backend == "local" else None) or os.cpu_count() or 1
     stages = {
         "render": ((lambda: merge_parts(cfg, out, parts, progress)) if parts
-                   else (lambda: render(cfg, out, (0, 1), workers, progress, backend, address, threads or 1))),
+                   else (lambda: render(cfg, out, (0, 1), workers, progress, backend, address, threads or 1, rerender_changed))),
         "contact_sheets": lambda: contact_sheets(out),
         "fuse": lambda: fuse_dataset(out, labels, workers if backend != "local" else cores, progress=progress,
                                      backend=backend, address=address),
@@ -103,12 +103,14 @@ def main(argv=None) -> int:
                     help="Blender processes and fusion processes (default: one Blender per core, one fusion process)")
     ap.add_argument("--threads", type=int, default=None, help="with --backend ray: CPU threads per Blender worker")
     add_backend_args(ap)
+    ap.add_argument("--rerender-changed", action="store_true",
+                    help="render again the scenes of --out whose recipe in the config changed since they were rendered")
     ap.add_argument("--no-progress", action="store_true")
     a = ap.parse_args(argv)
     require_positive("--workers", a.workers)
     require_positive("--threads", a.threads)
     return build_dataset(load_config(a.config), a.out, a.backend, a.workers, a.address, a.threads,
-                         progress=not a.no_progress, config_path=a.config)
+                         progress=not a.no_progress, config_path=a.config, rerender_changed=a.rerender_changed)
 
 
 

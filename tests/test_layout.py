@@ -72,3 +72,39 @@ def test_resume_after_a_torn_manifest_line(tiny_rendered, tmp_path):
     assert [(e["scene"], e["frame"]) for e in Manifest(out).entries()] == sorted((json.loads(x)["scene"], json.loads(x)["frame"]) for x in lines)
     r = run("dataset_tools", "index", str(out))
     assert r.returncode == 0 and "not valid JSON" not in r.stderr, r.stderr
+
+
+def test_drop_removes_a_scene_s_lines_and_keeps_the_rest(tmp_path):
+    m = Manifest(tmp_path)
+    for e in (entry("a", 0), entry("b", 0), entry("a", 1)):
+        m.append(e)
+    with open(m.path, "a") as f:
+        f.write("not json\n")
+    m.drop({"a"})
+    assert m.done() == {("b", 0)}
+    assert m.path.read_text().splitlines()[-1] == "not json"  # a bad line is not this function's to judge
+
+
+def test_a_scene_whose_recipe_changed_is_refused_then_rendered_again_on_request(tiny_rendered, tmp_path):
+    """The config says another recipe for a scene already rendered (here: the stored recipe edited,
+    as if the config had changed since): generate refuses with one line and writes nothing; with
+    --rerender-changed it renders that scene again and leaves the others as they were."""
+    out = tmp_path / "ds"
+    shutil.copytree(tiny_rendered, out)
+    stored = out / "recipes" / "roundabout.yaml"
+    stored.write_text(stored.read_text().replace("preset:", "preset:  ", 1))  # not the config's text any more
+    before = {p: p.stat().st_mtime_ns for p in out.glob("*/*/meta.json")}
+    manifest = (out / "manifest.jsonl").read_bytes()
+    cmd = ("dataset_tools", "generate", "--config", "configs/dataset/tiny.yaml", "--out", str(out), "--no-progress", "--workers", "1")
+    r = run(*cmd)
+    assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr[-2000:]
+    assert "roundabout" in r.stderr and "--rerender-changed" in r.stderr and len(r.stderr.strip().splitlines()) == 1, r.stderr
+    assert (out / "manifest.jsonl").read_bytes() == manifest and "preset:  " in stored.read_text()
+    r = run(*cmd, "--rerender-changed")
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert "rendering 1 changed scene(s) again (roundabout)" in r.stdout + r.stderr
+    after = {p: p.stat().st_mtime_ns for p in out.glob("*/*/meta.json")}
+    assert set(after) == set(before)
+    assert [p.parts[-3] for p in after if after[p] != before[p]] == ["roundabout"] * 2
+    assert "preset:  " not in stored.read_text() and not list(out.glob(".roundabout.*"))
+    assert sorted(Manifest(out).done()) == sorted((json.loads(x)["scene"], json.loads(x)["frame"]) for x in manifest.splitlines())

@@ -39,7 +39,7 @@ import threading
 from pathlib import Path
 
 from common.errors import InputError
-from common.files import write_text_atomic
+from common.files import write_bytes_atomic, write_text_atomic
 
 MANIFEST = "manifest.jsonl"
 INDEX = "index.json"
@@ -159,6 +159,13 @@ class Manifest:
     def done(self) -> set[tuple[str, int]]:
         """(scene, frame) of every valid line (bad lines are skipped: those frames are redone)."""
         return {(e["scene"], e["frame"]) for _, e, problem in self.lines() if not problem}
+
+    def drop(self, scenes) -> None:
+        """Remove every line of these scenes (the file rewritten atomically; bad lines are kept)."""
+        scenes = set(scenes)
+        keep = [line for line in _complete_lines(self.path) if (_parse(line)[0] or {}).get("scene") not in scenes]
+        with self._lock:
+            write_bytes_atomic(self.path, b"".join(line + b"\n" for line in keep))
 
     def repair(self) -> None:
         """Cut a torn last line (a run killed mid-write) so the next append starts a clean line."""

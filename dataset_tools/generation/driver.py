@@ -32,18 +32,63 @@ def plan(cfg: dict, shard: tuple[int, int]) -> list[tuple[dict, int]]:
     return [j for k, j in enumerate(jobs) if k % n == i]
 
 
+def recipe_text(scene: dict) -> str:
+    """The text of <out>/recipes/<scene>.yaml for a scene of load_config."""
+    import yaml
+
+    return yaml.safe_dump(scene["recipe"], sort_keys=False, default_flow_style=None, width=120)
+
+
 def write_recipes(cfg: dict, out: Path) -> None:
     """<out>/recipes/<scene>.yaml: the checked recipe of every scene, so any scene (sampled ones
     included) can be rendered again alone (`recipe: <out>/recipes/<scene>.yaml` in a config)."""
-    import yaml
-
     d = out / RECIPES_DIR
     d.mkdir(parents=True, exist_ok=True)
     for s in cfg["scenes"]:
-        text = yaml.safe_dump(s["recipe"], sort_keys=False, default_flow_style=None, width=120)
-        path = d / f"{s['name']}.yaml"
+        text, path = recipe_text(s), d / f"{s['name']}.yaml"
         if not path.is_file() or path.read_text() != text:
             write_text_atomic(path, text)
+
+
+def changed_scenes(cfg: dict, out: Path, done: set) -> list[str]:
+    """The config's scenes with frames in the manifest whose recipe is not the one in
+    <out>/recipes/ (the config, or the code that draws its recipes, changed since they were rendered)."""
+    rendered = {scene for scene, _ in done}
+    d = out / RECIPES_DIR
+    return [s["name"] for s in cfg["scenes"] if s["name"] in rendered and (d / f"{s['name']}.yaml").is_file()
+            and (d / f"{s['name']}.yaml").read_text() != recipe_text(s)]
+
+
+def forget_scenes(out: Path, manifest: Manifest, scenes: list[str]) -> None:
+    """Make these scenes unrendered: each folder moved aside (one rename), their manifest lines
+    dropped, then the folders deleted; a kill at any point leaves them to be rendered again whole."""
+    import shutil
+
+    aside = []
+    for name in scenes:
+        if (out / name).is_dir():
+            aside.append(out / f".{name}.{os.getpid()}.stale")
+            os.replace(out / name, aside[-1])
+    manifest.drop(scenes)
+    for p in aside:
+        shutil.rmtree(p, ignore_errors=True)
+
+
+def check_changed(cfg: dict, out: Path, manifest: Manifest, rerender_changed: bool) -> set:
+    """The frames already rendered from the config's recipes: scenes rendered from another recipe
+    are refused (one line), or with `rerender_changed` forgotten, to be rendered again."""
+    done = manifest.done()
+    changed = changed_scenes(cfg, out, done)
+    if changed and not rerender_changed:
+        raise ConfigError(f"{out}: {len(changed)} rendered scene(s) ({', '.join(changed[:3])}{', ...' if len(changed) > 3 else ''}) "
+                          f"have another recipe in the config now than in {out / RECIPES_DIR} (the config or the code changed "
+                          "since they were rendered); render into a new --out, or add --rerender-changed (make dataset RERENDER=1) to render them again")
+    if changed:
+        print(f"generate: rendering {len(changed)} changed scene(s) again ({', '.join(changed[:3])}"
+              f"{', ...' if len(changed) > 3 else ''})", flush=True)
+        forget_scenes(out, manifest, changed)
+        done = manifest.done()
+    return done
 
 
 class WorkerFailed(Exception):
@@ -175,19 +220,20 @@ def _drive(q: queue.Queue, new_worker, on_frame, errors: list, reschedule: bool,
 
 
 def render(cfg: dict, out: Path, shard=(0, 1), workers: int | None = None, progress: bool = True,
-           backend: str = "local", address: str | None = None, threads: int = 1) -> list[str]:
+           backend: str = "local", address: str | None = None, threads: int = 1, rerender_changed: bool = False) -> list[str]:
     """The render stage: this shard's missing frames of `cfg` (load_config) into `out`; the problems,
     one line each (none: every frame is rendered). backend "local": `workers` Blender processes on
     this machine (default one per core, the cores shared among them); "ray": one actor per Blender
-    process on the Ray cluster at `address`, `threads` cores each (common.backend)."""
+    process on the Ray cluster at `address`, `threads` cores each (common.backend). Scenes rendered
+    before from another recipe raise ConfigError, or with `rerender_changed` are rendered again."""
     from tqdm import tqdm
 
     out.mkdir(parents=True, exist_ok=True)
     clean_stale_temps(out)
-    write_recipes(cfg, out)
     manifest = Manifest(out)
     manifest.repair()
-    done = manifest.done()
+    done = check_changed(cfg, out, manifest, rerender_changed)
+    write_recipes(cfg, out)
     todo = [(s, f) for s, f in plan(cfg, shard) if (s["name"], f) not in done]
     if todo:  # what each camera of the rig became (exact model or a fit, with its residual), once
         from geometry.rig import load_rig
