@@ -112,6 +112,7 @@ class EfficientNetLite0Encoder(nn.Module):
         self.frozen = frozen
         for mod in self._frozen_modules():
             mod.requires_grad_(False)
+        self.train()  # as built, too: a module starts in training mode without a call to train()
         self.register_buffer("mean", torch.tensor(IMAGENET_MEAN).view(1, 3, 1, 1), persistent=False)
         self.register_buffer("std", torch.tensor(IMAGENET_STD).view(1, 3, 1, 1), persistent=False)
 

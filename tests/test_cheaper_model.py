@@ -26,6 +26,12 @@ def test_frozen_levels_get_no_gradient_and_keep_their_statistics():
     enc = frozen.encoder
     assert enc.frozen_blocks == enc.ends[2] + 1 > 0
     x = torch.rand(2, len(rig), 3, 64, 64)
+    built = build_model(cfg(2), rig)  # as built: training mode without a call to train() (train.py's model)
+    bns = [m for m in built.encoder.stem.modules() if isinstance(m, torch.nn.BatchNorm2d)]
+    stats = [m.running_mean.clone() for m in bns]
+    built(x)
+    assert built.training and not built.encoder.stem.training
+    assert all(torch.equal(u, m.running_mean) for u, m in zip(stats, bns)), "a frozen BatchNorm moved before train()"
     free.eval(), frozen.eval()
     with torch.no_grad():  # the same network: freezing changes training, not the function
         a, b = free(x), frozen(x)
