@@ -65,13 +65,16 @@ def check_splits(scenes, min_scenes: int, max_frames: int):
 def test_medium_preset_plans_many_scenes_per_test_split_at_the_same_render_cost():
     cfg, frames, scenes = planned("configs/dataset/medium.yaml")
     check_splits(scenes, min_scenes=8, max_frames=4)
-    assert {s: len(scenes[s]) for s in scenes} == {"train": 80, "easy": 10, "medium": 10, "hard": 10, "heldout": 16}
-    # the frames rendered: 412 as before (the test splits were one scene of 20 frames each), 27 more scene builds
+    assert {s: len(scenes[s]) for s in scenes} == {"train": 160, "easy": 10, "medium": 10, "hard": 10, "heldout": 16}
+    # the frames rendered: 412 as before (the test splits were one scene of 20 frames each; the training
+    # split 80 scenes of 4 frames until 2026-11-28), more scene builds
     assert frames == {"train": 320, "easy": 20, "medium": 20, "hard": 20, "heldout": 32}
-    # training and held-out scenes are the blocks they were (seed 1 and seed 1001)
-    old = {"frames": 4, "rate_hz": 0.5, "rig_jitter": 1.0}
-    assert scenes["train"] == sample_recipes(SAMPLE.validate({"count": 80, "seed": 1, **old}, "x"))
-    assert scenes["heldout"] == sample_recipes(SAMPLE.validate({"count": 16, "seed": 1001, **old, "frames": 2, "prefix": "heldout"}, "x"))
+    # training scenes: seed 1's block, 2 frames each (its first 80 the recipes of the 80 x 4 block); held-out as it was
+    two = {"frames": 2, "rate_hz": 0.5, "rig_jitter": 1.0}
+    assert scenes["train"] == sample_recipes(SAMPLE.validate({"count": 160, "seed": 1, **two}, "x"))
+    old80 = sample_recipes(SAMPLE.validate({"count": 80, "seed": 1, **two, "frames": 4}, "x"))
+    assert [{**r, "frames": {**r["frames"], "count": 2}} for r in old80] == scenes["train"][:80]
+    assert scenes["heldout"] == sample_recipes(SAMPLE.validate({"count": 16, "seed": 1001, **two, "prefix": "heldout"}, "x"))
     assert all(r.get("rig_jitter") == 1.0 for s in TEST_SPLITS for r in scenes[s])
 
 
