@@ -100,8 +100,10 @@ def test_a_scene_whose_recipe_changed_is_refused_then_rendered_again_on_request(
     assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr[-2000:]
     assert "roundabout" in r.stderr and "--rerender-changed" in r.stderr and len(r.stderr.strip().splitlines()) == 1, r.stderr
     assert (out / "manifest.jsonl").read_bytes() == manifest and "preset:  " in stored.read_text()
+    (out / ".s1_0007.123.stale" / "000000").mkdir(parents=True)  # left by a run killed while forgetting a scene
     r = run(*cmd, "--rerender-changed")
     assert r.returncode == 0, r.stderr[-2000:]
+    assert not list(out.glob(".*.stale"))
     assert "rendering 1 changed scene(s) again (roundabout)" in r.stdout + r.stderr
     after = {p: p.stat().st_mtime_ns for p in out.glob("*/*/meta.json")}
     assert set(after) == set(before)

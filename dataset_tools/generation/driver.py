@@ -77,6 +77,10 @@ def forget_scenes(out: Path, manifest: Manifest, scenes: list[str]) -> None:
 def check_changed(cfg: dict, out: Path, manifest: Manifest, rerender_changed: bool) -> set:
     """The frames already rendered from the config's recipes: scenes rendered from another recipe
     are refused (one line), or with `rerender_changed` forgotten, to be rendered again."""
+    import shutil
+
+    for p in out.glob(".*.stale"):  # a folder forget_scenes moved aside before a kill
+        shutil.rmtree(p, ignore_errors=True)
     done = manifest.done()
     changed = changed_scenes(cfg, out, done)
     if changed and not rerender_changed:
