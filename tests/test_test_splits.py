@@ -67,7 +67,7 @@ def test_medium_preset_plans_many_scenes_per_test_split_at_the_same_render_cost(
     check_splits(scenes, min_scenes=8, max_frames=4)
     assert {s: len(scenes[s]) for s in scenes} == {"train": 160, "easy": 10, "medium": 10, "hard": 10, "heldout": 16}
     # the frames rendered: 412 as before (the test splits were one scene of 20 frames each; the training
-    # split 80 scenes of 4 frames until 2026-11-28), more scene builds
+    # split 80 scenes of 4 frames until 2026-12-06), more scene builds
     assert frames == {"train": 320, "easy": 20, "medium": 20, "hard": 20, "heldout": 32}
     # training scenes: seed 1's block, 2 frames each (its first 80 the recipes of the 80 x 4 block); held-out as it was
     two = {"frames": 2, "rate_hz": 0.5, "rig_jitter": 1.0}
