@@ -163,8 +163,8 @@ class Manifest:
     def drop(self, scenes) -> None:
         """Remove every line of these scenes (the file rewritten atomically; bad lines are kept)."""
         scenes = set(scenes)
-        keep = [line for line in _complete_lines(self.path) if (_parse(line)[0] or {}).get("scene") not in scenes]
-        with self._lock:
+        with self._lock:  # no append between the read and the rewrite
+            keep = [line for line in _complete_lines(self.path) if (_parse(line)[0] or {}).get("scene") not in scenes]
             write_bytes_atomic(self.path, b"".join(line + b"\n" for line in keep))
 
     def repair(self) -> None:

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import os
 import queue
+import shutil
 import subprocess
 import sys
 from concurrent.futures import ThreadPoolExecutor
@@ -61,9 +62,8 @@ def changed_scenes(cfg: dict, out: Path, done: set) -> list[str]:
 
 def forget_scenes(out: Path, manifest: Manifest, scenes: list[str]) -> None:
     """Make these scenes unrendered: each folder moved aside (one rename), their manifest lines
-    dropped, then the folders deleted; a kill at any point leaves them to be rendered again whole."""
-    import shutil
-
+    dropped, then the folders deleted; a kill at any point leaves them to be rendered again whole
+    (a folder left aside is removed by the next render)."""
     aside = []
     for name in scenes:
         if (out / name).is_dir():
@@ -77,19 +77,15 @@ def forget_scenes(out: Path, manifest: Manifest, scenes: list[str]) -> None:
 def check_changed(cfg: dict, out: Path, manifest: Manifest, rerender_changed: bool) -> set:
     """The frames already rendered from the config's recipes: scenes rendered from another recipe
     are refused (one line), or with `rerender_changed` forgotten, to be rendered again."""
-    import shutil
-
-    for p in out.glob(".*.stale"):  # a folder forget_scenes moved aside before a kill
-        shutil.rmtree(p, ignore_errors=True)
     done = manifest.done()
     changed = changed_scenes(cfg, out, done)
+    named = ", ".join(changed[:3]) + (", ..." if len(changed) > 3 else "")
     if changed and not rerender_changed:
-        raise ConfigError(f"{out}: {len(changed)} rendered scene(s) ({', '.join(changed[:3])}{', ...' if len(changed) > 3 else ''}) "
+        raise ConfigError(f"{out}: {len(changed)} rendered scene(s) ({named}) "
                           f"have another recipe in the config now than in {out / RECIPES_DIR} (the config or the code changed "
                           "since they were rendered); render into a new --out, or add --rerender-changed (make dataset RERENDER=1) to render them again")
     if changed:
-        print(f"generate: rendering {len(changed)} changed scene(s) again ({', '.join(changed[:3])}"
-              f"{', ...' if len(changed) > 3 else ''})", flush=True)
+        print(f"generate: rendering {len(changed)} changed scene(s) again ({named})", flush=True)
         forget_scenes(out, manifest, changed)
         done = manifest.done()
     return done
@@ -234,6 +230,8 @@ def render(cfg: dict, out: Path, shard=(0, 1), workers: int | None = None, progr
 
     out.mkdir(parents=True, exist_ok=True)
     clean_stale_temps(out)
+    for p in out.glob(".*.stale"):  # a scene folder forget_scenes moved aside before a kill
+        shutil.rmtree(p, ignore_errors=True)
     manifest = Manifest(out)
     manifest.repair()
     done = check_changed(cfg, out, manifest, rerender_changed)
