@@ -159,6 +159,21 @@ def test_noise_reduction_smooths_the_grain_and_keeps_edges(front):
     assert sensor.noise_sd_srgb(dict(p, analog_gain=4.0)) > 1.4 * sensor.noise_sd_srgb(p)
 
 
+def test_edge_enhancement_steepens_a_soft_edge_by_its_drawn_amount(front):
+    """The unsharp mask: drawn within sensor.SHARPEN; a flat grey stays as it was, a soft edge (a
+    3-px ramp, as the denoised renders have) gets steeper the larger the amount."""
+    amounts = [sensor.draw(ALL, np.random.default_rng([k, 7, 0]))["sharpen"] for k in range(200)]
+    assert sensor.SHARPEN[0] <= min(amounts) < sensor.SHARPEN[0] + 0.05 and sensor.SHARPEN[1] - 0.05 < max(amounts) <= sensor.SHARPEN[1]
+    _, theta, pp = front
+    img = np.full(theta.shape + (3,), 100, np.uint8)
+    img[:, 47], img[:, 48], img[:, 49:] = 120, 140, 160
+    slope = lambda x: np.abs(np.diff(x[5:-5, 40:56, 1].astype(float), axis=1)).max(1).mean()  # noqa: E731
+    flat = np.s_[5:-5, 5:30, 1]
+    out = {a: sensor.apply(img, {"sharpen": a}, theta, pp) for a in (0.0, 0.4, 1.0)}
+    assert all(np.array_equal(o[flat], img[flat]) for o in out.values())
+    assert slope(out[0.0]) < slope(out[0.4]) - 2 < slope(out[1.0]) - 4
+
+
 def test_auto_white_balance_greys_a_cast_and_ignores_coloured_surfaces(front):
     """A street under warm lamps (its greys 10 % red, 10 % short of blue, as our night frames) comes
     out grey; a large saturated green (grass) beside it neither counts nor turns magenta."""

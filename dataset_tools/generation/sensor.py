@@ -11,7 +11,7 @@ drawn once per frame and camera from the frame's seed (so a frame renders to the
 | white_balance | the auto white balance: red and blue gains that make the image's near-grey pixels grey on average (grey world over unsaturated, unclipped pixels; each gain within 0.75-1.33), times an error | error gains normal around 1, sd 0.03 each |
 | vignetting | light falloff, 1 - s (theta / theta_max)^2 by ray angle | s uniform 0.2-0.45 |
 | chromatic_aberration | lateral: red and blue scaled about the principal point | +-k, k uniform 0.0005-0.002 |
-| sharpen | the camera's edge enhancement (unsharp mask, radius 1 px) | amount uniform 0.2-0.6 |
+| sharpen | the camera's edge enhancement (unsharp mask, radius 1 px) | amount uniform 0.6-1.2 |
 | noise | shot and read noise, in linear light, amplified by the analog gain (a longer exposure gathers more light, a gain only amplifies: grainy at night) | shot gain uniform 0.0001-0.0004 (a full well of 2,500-10,000 electrons), read sd uniform 0.0005-0.0015 |
 | noise_reduction | the ISP's spatial noise reduction after the sensor: an edge-preserving (bilateral) filter in the 8-bit image's gamma, whose grey-level threshold is a multiple of the noise the analog gain gives a mid-grey (what a camera's ISP is tuned to per gain) | multiple uniform 1.5-3, over 1 px (5 x 5) |
 | jpeg | JPEG compression of the stream | quality uniform 70-95 (off unless asked) |
@@ -52,6 +52,9 @@ ANALOG_GAIN = (1.0, 8.0)  # the sensor's analog gain, raised only once the expos
 KEY = 0.18  # the log-average luminance the auto-exposure aims at in daylight
 DIM = 4.0  # scenes that need more than DIM x daylight's exposure get the square root of the rest: dusk and
 # night stay darker than day (a camera that brought a night street to a day's grey would show a lit day)
+# the unsharp mask's amount: 0.6-1.2 since 2026-12-06 (0.2-0.6 before left our edges softer than a
+# real automotive camera's; docs/rendering.md, "Kept: a stronger edge enhancement")
+SHARPEN = (0.6, 1.2)
 SENSOR = Section({e: Bool(default=e != "jpeg") for e in EFFECTS})
 OFF = {e: False for e in EFFECTS}
 
@@ -66,7 +69,7 @@ def draw(switches: dict, rng: np.random.Generator) -> dict:
         "wb_gains": [float(1 + 0.03 * z[1]), 1.0, float(1 + 0.03 * z[2])],
         "vignetting": float(0.2 + 0.25 * u[0]),
         "chromatic_aberration": float((0.0005 + 0.0015 * u[1]) * (1 if u[2] < 0.5 else -1)),
-        "sharpen": float(0.2 + 0.4 * u[3]),
+        "sharpen": float(SHARPEN[0] + (SHARPEN[1] - SHARPEN[0]) * u[3]),
         "shot_gain": float(0.0001 + 0.0003 * u[4]),
         "read_sd": float(0.0005 + 0.001 * u[5]),
         "jpeg_quality": int(70 + 25 * u[6]),
