@@ -74,6 +74,12 @@ def forget_scenes(out: Path, manifest: Manifest, scenes: list[str]) -> None:
         shutil.rmtree(p, ignore_errors=True)
 
 
+def remove_aside(out: Path) -> None:
+    """Remove the scene folders a killed forget_scenes left moved aside (`.<scene>.<pid>.stale`)."""
+    for p in out.glob(".*.stale"):
+        shutil.rmtree(p, ignore_errors=True)
+
+
 def check_changed(cfg: dict, out: Path, manifest: Manifest, rerender_changed: bool) -> set:
     """The frames already rendered from the config's recipes: scenes rendered from another recipe
     are refused (one line), or with `rerender_changed` forgotten, to be rendered again."""
@@ -230,8 +236,7 @@ def render(cfg: dict, out: Path, shard=(0, 1), workers: int | None = None, progr
 
     out.mkdir(parents=True, exist_ok=True)
     clean_stale_temps(out)
-    for p in out.glob(".*.stale"):  # a scene folder forget_scenes moved aside before a kill
-        shutil.rmtree(p, ignore_errors=True)
+    remove_aside(out)
     manifest = Manifest(out)
     manifest.repair()
     done = check_changed(cfg, out, manifest, rerender_changed)
