@@ -2,8 +2,9 @@
 
 Pins two facts the data set's determinism rests on: settings changed through `set_cycles` reach
 the next render (a bare assignment to scene.cycles does not, in a persistent session), and the
-label renders' `label_mode` (no lights, no sky, no bounces, one sample) changes no label pass and leaves
-nothing behind: the rgb rendered after it is bit-identical to the rgb rendered before it.
+label renders' `label_mode` (no lights, no sky, no bounces, one sample, a plain shader on every
+surface) changes no label pass and leaves nothing behind: the rgb rendered after it is
+bit-identical to the rgb rendered before it.
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ bpy = pytest.importorskip("bpy", reason="bpy is part of the pinned environment (
 
 from blender_scripts.build_scene import build_scene, set_frame  # noqa: E402
 from blender_scripts.render_frame import (  # noqa: E402
+    LABEL_SURFACE,
     _render_to_exr,
     configure_render,
     label_mode,
@@ -75,6 +77,7 @@ def test_label_mode_changes_no_label_and_leaves_nothing_behind(night):
         assert scene.cycles.max_bounces == 0 and scene.cycles.samples == 1
         assert all(o.data.energy == 0 for o in scene.objects if o.type == "LIGHT")
         assert not scene.view_layers[0].use_sky
+        assert all(_surface_source(m) == LABEL_SURFACE for m in _shaded(scene)), "a plain shader on every surface"
         fast = render_topdown(scene, built.topdown, 48, built.occluders, frame["world_to_ego"], tmp)
     assert full.keys() == fast.keys()
     for k in full:
@@ -86,7 +89,22 @@ def test_label_mode_changes_no_label_and_leaves_nothing_behind(night):
     assert {o.name: o.data.energy for o in scene.objects if o.type == "LIGHT"} == energies
     assert {k: getattr(scene.cycles, k) for k in settings} == settings
     assert all(o.visible_camera for o in built.occluders)
+    assert not any(_surface_source(m) == LABEL_SURFACE for m in _shaded(scene))
     assert np.array_equal(_rgb(built, scene, tmp), before)
+
+
+def _shaded(scene) -> list:
+    """The node materials on the scene's objects."""
+    mats = {s.material for o in scene.objects for s in getattr(o, "material_slots", ()) if s.material}
+    assert mats, "the scene has materials"
+    return [m for m in mats if m.use_nodes]
+
+
+def _surface_source(m) -> str | None:
+    """The name of the node the material's output takes its surface from."""
+    out = next(n for n in m.node_tree.nodes if n.bl_idname == "ShaderNodeOutputMaterial")
+    links = out.inputs["Surface"].links
+    return links[0].from_node.name if links else None
 
 
 def test_the_hdr_tone_mapping_writes_through_the_view_transform_as_a_render_does(night):
