@@ -67,6 +67,9 @@ SCHEMA = Section({
         "scale": List(Num(above=0, hi=4.0), length=2, default=[0.95, 1.05]),
         "rotation_deg": Num(0.0, 45.0, default=5.0),
         "crop": Bool(default=True),
+        # the probability that a training sample is mirrored about the ego's x axis: every image
+        # flipped left-right, the labels and the lift geometry mirrored with them (model.frustum)
+        "mirror": Num(0.0, 1.0, default=0.0),
     }),
     "model": Section({
         "trunk": Str(choices=("scratch", "efficientnet_lite0"), default="scratch"),  # model.encoder / model.efficientnet
@@ -158,6 +161,18 @@ def _semantic_checks(cfg: dict, source: str):
     a = cfg["augment"]["scale"]
     if not a[0] <= a[1]:
         raise ConfigError(f"{source}: augment.scale: must be [low, high] with 0 < low <= high")
+    if cfg["augment"]["mirror"] > 0:
+        if m["pooling"] not in ("sum", "max"):
+            raise ConfigError(f"{source}: augment.mirror: needs a pooling that treats every camera alike (sum, max); "
+                              f"{m['pooling']} learns weights per camera, which a mirrored rig would swap")
+        if cfg["data"]["input_size"][0] % s:
+            raise ConfigError(f"{source}: augment.mirror: the input width {cfg['data']['input_size'][0]} must be a multiple "
+                              f"of model.stride {s} (the feature columns are mirrored)")
+        from geometry.bev import BevGrid
+
+        g = BevGrid.from_dict(cfg["data"]["grid"])
+        if g.y_min != -g.y_max:
+            raise ConfigError(f"{source}: augment.mirror: data.grid's y range [{g.y_min:g}, {g.y_max:g}] must be symmetric about 0")
 
 
 def validate(user: dict | None, source: str = "config") -> dict:

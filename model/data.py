@@ -8,7 +8,9 @@ cached nominal geometry. A frame rendered through its own (jittered) rig (`Frame
 lifted with that rig: in a split holding such frames every sample carries its geometry, so a batch
 never mixes samples with and without it. Augmentation is drawn
 from a generator seeded by (seed, epoch, sample index), so a sample is the same whichever worker or
-DDP process loads it, and a resumed run sees the same data as an uninterrupted one.
+DDP process loads it, and a resumed run sees the same data as an uninterrupted one. A mirrored
+sample (`augment.mirror`) has its images, camera-view targets and labels flipped along y and its
+lift geometry mirrored (`model.frustum.mirrored_cells`).
 On a GPU (`device_images`) the images leave the loader as 8 bits with their colour jitter's draws, and
 `finish` converts and jitters the batch on the device (the same draws, the same kornia steps).
 """
@@ -149,10 +151,12 @@ class BevDataset(Dataset):
         seed = int(rng.integers(2**63))  # the colour jitter's torch seed
         sample = {}
         frustum, rectify = self.geometry_of(ref, f["meta"])
+        mirrored = False
         if self.augment:
             a = self.augment
             transforms = [random_transform(rc.camera, self.input_size, rng, a["scale"], a["rotation_deg"], a["crop"]) for rc in frustum.rig]
-            sample["point_cell"], sample["intrinsics"] = frustum.geometry(transforms)
+            mirrored = a["mirror"] > 0 and bool(rng.random() < a["mirror"])  # drawn last: other draws as without it
+            sample["point_cell"], sample["intrinsics"] = frustum.geometry(transforms, mirrored)
         else:
             transforms = frustum.nominal_transforms()
             if self.carry_geometry:
@@ -164,7 +168,8 @@ class BevDataset(Dataset):
                 raise DataError(f"{FrameFiles(ref.dir).camera_png(rc.name)}: size {img.shape[1]}x{img.shape[0]}, rig says {src.width}x{src.height}")
             if rectify:
                 img = rectify(rc.name, img)
-            imgs.append(warp_image(img, rc.camera, t))
+            img = warp_image(img, rc.camera, t)
+            imgs.append(img[:, ::-1] if mirrored else img)
         images = torch.from_numpy(np.stack(imgs)).permute(0, 3, 1, 2)
         if self.device_images:
             if self.jitter is not None:
@@ -176,8 +181,11 @@ class BevDataset(Dataset):
                     torch.manual_seed(seed)
                     images = self.jitter(images)
         if self.camera_targets:
-            sample["depth_target"], sample["camera_semantic"] = self.targets_of(ref, frustum, transforms, rectify, f.get("camera_targets"))
+            depth, semantic = self.targets_of(ref, frustum, transforms, rectify, f.get("camera_targets"))
+            sample["depth_target"], sample["camera_semantic"] = (depth.flip(-1), semantic.flip(-1)) if mirrored else (depth, semantic)
         sem, vis = self.pooled_labels(ref, f)
+        if mirrored:  # the grid's columns run along y: y -> -y
+            sem, vis = sem[:, ::-1], vis[:, ::-1]
         return {
             **sample,
             "images": images,

@@ -11,6 +11,14 @@ Feature-map pixel convention: a stride-s feature pixel (i, j) covers image pixel
 (geometry's resize keeps pixel centres: u' = (u + 0.5) / s - 0.5), so the lift unprojects the
 pixel grid of that camera. The image encoder is built so its feature pixels are centred there
 (see `model.encoder`).
+
+Mirrored samples (`augment.mirror`): every image flipped left-right is what a mirrored camera sees
+of the world mirrored about the ego's x axis (y -> -y), for any camera: the flipped image's pixel
+(u, v) is the original's (W - 1 - u, v), whose point at bin k is p; in the mirrored world it lies at
+(p_x, -p_y, p_z). So the mirrored geometry is the original's point cells flipped along the feature
+columns with each cell's column mirrored (`mirrored_cells`; exact when the input width is a multiple
+of the stride and the grid's y range is symmetric), and the intrinsics descriptor read to the left
+of the principal point (`intrinsics_descriptor(camera, mirrored=True)`).
 """
 
 from __future__ import annotations
@@ -75,21 +83,34 @@ INTRINSIC_RADII = (0.25, 0.5, 0.75, 1.0)
 INTRINSICS_DIM = 4 + 2 * len(INTRINSIC_RADII)
 
 
-def intrinsics_descriptor(camera) -> np.ndarray:
+def mirrored_cells(point_cell: np.ndarray, grid: BevGrid) -> np.ndarray:
+    """Point cells (..., h, w) of the images flipped left-right in the world mirrored about the ego x
+    axis: the feature columns reversed and each cell's column j -> cols - 1 - j (-1 stays -1)."""
+    if grid.y_min != -grid.y_max:
+        raise ValueError(f"BEV grid: y range [{grid.y_min}, {grid.y_max}] is not symmetric, so it has no mirror image")
+    pc = point_cell[..., ::-1]
+    row, col = np.divmod(pc, grid.cols)
+    return np.where(pc >= 0, row * grid.cols + (grid.cols - 1 - col), -1).astype(np.int64)
+
+
+def intrinsics_descriptor(camera, mirrored: bool = False) -> np.ndarray:
     """A fixed-length description of a camera's intrinsics that means the same for every model
     (for the intrinsics-embedding pooling): the effective focal lengths at the principal point
     (one pixel over the angle it spans, right and down) over W and H, cx/W, cy/H (together the
     normalised 3x3 matrix), and the angle off the optical axis, in radians, of the pixels at 1/4 ..
     4/4 of the half width right of the principal point and of the half height below it (how the
-    lens maps radius to angle)."""
+    lens maps radius to angle). `mirrored`: the descriptor of the camera whose image is this one's
+    flipped left-right (principal point at W - 1 - cx; what lies right of it is what lay left)."""
     w, h = camera.width, camera.height
     cx, cy = camera.cx, camera.cy
-    uv = [(cx + 1.0, cy), (cx, cy + 1.0)]
-    uv += [(cx + t * w / 2, cy) for t in INTRINSIC_RADII] + [(cx, cy + t * h / 2) for t in INTRINSIC_RADII]
+    right = -1.0 if mirrored else 1.0
+    uv = [(cx + right, cy), (cx, cy + 1.0)]
+    uv += [(cx + right * t * w / 2, cy) for t in INTRINSIC_RADII] + [(cx, cy + t * h / 2) for t in INTRINSIC_RADII]
     rays, valid = camera.unproject(np.asarray(uv, dtype=np.float64))
     theta = np.where(valid, np.arccos(np.clip(rays[:, 2], -1, 1)), math.pi)
     fx, fy = 1.0 / max(theta[0], 1e-9), 1.0 / max(theta[1], 1e-9)
-    return np.concatenate([[fx / w, fy / h, cx / w, cy / h], theta[2:]]).astype(np.float32)
+    cx_seen = (w - 1 - cx) if mirrored else cx
+    return np.concatenate([[fx / w, fy / h, cx_seen / w, cy / h], theta[2:]]).astype(np.float32)
 
 
 class Frustum:
@@ -116,11 +137,16 @@ class Frustum:
         transforms = self.nominal_transforms() if transforms is None else transforms
         return Rig([transform_camera(rc, t) for rc, t in zip(self.rig, transforms)], self.rig.name)
 
-    def geometry(self, transforms=None) -> tuple[torch.Tensor, torch.Tensor]:
-        """(point_cell (N, D, h, w) int64, intrinsics (N, INTRINSICS_DIM) float32)."""
+    def geometry(self, transforms=None, mirrored: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
+        """(point_cell (N, D, h, w) int64, intrinsics (N, INTRINSICS_DIM) float32); `mirrored`: of
+        the images flipped left-right, in the world mirrored about the ego x axis (module docstring)."""
         rig = self.input_rig(transforms)
         pc = np.stack([camera_point_cells(rc, self.stride, self.input_size, self.bins, self.grid, self.z_range) for rc in rig])
-        intr = np.stack([intrinsics_descriptor(rc.camera) for rc in rig])
+        if mirrored:
+            if self.input_size[0] % self.stride:
+                raise ValueError(f"input width {self.input_size[0]} is not a multiple of the stride {self.stride}: no exact mirror")
+            pc = mirrored_cells(pc, self.grid)
+        intr = np.stack([intrinsics_descriptor(rc.camera, mirrored) for rc in rig])
         return torch.from_numpy(pc), torch.from_numpy(intr)
 
     @cached_property

@@ -103,6 +103,31 @@ def test_augmentation_moves_camera_with_image(t):
     assert checked >= 2
 
 
+@pytest.mark.parametrize("t", [ViewTransform(0.4, 0.0, 0, 0, (192, 120)), ViewTransform(0.42, 8.0, 13, 9, (192, 120))])
+def test_mirrored_geometry_is_the_geometry_of_mirrored_cameras(t):
+    """The images flipped left-right are what mirrored cameras see of the world mirrored about the
+    ego x axis: for each camera (at a view transform that puts the principal point off centre),
+    its point cells and intrinsics descriptor mirrored (model.frustum) equal those of that camera
+    built explicitly: the same lens with cx -> W - 1 - cx, its pose reflected (y -> -y) with its
+    image x axis reversed."""
+    from geometry.cameras import camera_from_dict
+    from model.frustum import intrinsics_descriptor, mirrored_cells
+
+    stride, size, bins = 8, t.size, depth_bins(1.0, 37.0, 36)
+    reflect, flip_x = np.diag([1.0, -1.0, 1.0, 1.0]), np.diag([-1.0, 1.0, 1.0, 1.0])
+    for rc in [*load_rig("configs/rigs/default.yaml"), *load_rig("configs/rigs/mixed.yaml")]:
+        seen = transform_camera(rc, t if can_rotate(rc.camera) else ViewTransform(t.scale, 0.0, t.x0, t.y0, t.size))
+        d = seen.camera.to_dict()
+        twin = RigCamera(rc.name, camera_from_dict({**d, "cx": d["width"] - 1 - d["cx"]}), reflect @ seen.cam_to_ego @ flip_x)
+        want = camera_point_cells(twin, stride, size, bins, GRID, (-10, 10))
+        got = mirrored_cells(camera_point_cells(seen, stride, size, bins, GRID, (-10, 10)), GRID)
+        assert (want >= 0).mean() > 0.3
+        assert (got == want).mean() > 0.999  # only points on a cell boundary may round to the other side
+        assert np.abs(intrinsics_descriptor(seen.camera, mirrored=True) - intrinsics_descriptor(twin.camera)).max() < 1e-6
+    with pytest.raises(ValueError, match="not symmetric"):
+        mirrored_cells(np.zeros((1, 2, 2), np.int64), BevGrid(y_min=-20.0, y_max=25.0, res=0.25))
+
+
 def test_rotation_only_for_square_radial_models():
     rig = load_rig("configs/rigs/mixed.yaml")
     assert all(can_rotate(rc.camera) for rc in rig)
@@ -374,6 +399,13 @@ def test_zero_intervals_are_valid_and_cross_field_checks_remain():
         validate({"model": {"depth": {"min": 5.0, "max": 2.0}}}, "c.yaml")
     with pytest.raises(ConfigError, match=r"model\.stride: must be a power of 2"):
         validate({"model": {"stride": 6}}, "c.yaml")
+    assert validate({"augment": {"mirror": 0.5}}, "c.yaml")["augment"]["mirror"] == 0.5
+    with pytest.raises(ConfigError, match=r"c\.yaml: augment\.mirror: needs a pooling that treats every camera alike"):
+        validate({"augment": {"mirror": 0.5}, "model": {"pooling": "weighted_sum"}}, "c.yaml")
+    with pytest.raises(ConfigError, match=r"augment\.mirror: the input width 190 must be a multiple of model\.stride 8"):
+        validate({"augment": {"mirror": 0.5}, "data": {"input_size": [190, 120]}}, "c.yaml")
+    with pytest.raises(ConfigError, match=r"augment\.mirror: data\.grid's y range \[-20, 25\] must be symmetric"):
+        validate({"augment": {"mirror": 0.5}, "data": {"grid": {"x_min": -25, "x_max": 25, "y_min": -20, "y_max": 25, "res": 0.25}}}, "c.yaml")
 
 
 def test_predict_gives_class_ids_and_visibility():

@@ -385,6 +385,35 @@ def test_a_cached_frame_gives_the_samples_of_a_fresh_read(real_tiny, tmp_path):
     assert torch.equal(ds[keys[0]]["visibility"], want[0]["visibility"])
 
 
+def test_a_mirrored_sample_is_the_sample_flipped_with_its_geometry_and_labels(real_tiny, tmp_path):
+    """augment.mirror: a mirrored sample is the same epoch's unmirrored sample (same view transforms
+    and colour draws) with every image, camera-view target and label flipped along y and the lift
+    geometry mirrored (model.frustum.mirrored_cells); samples it leaves unmirrored are unchanged."""
+    from model.config import load_config
+    from model.data import BevDataset
+    from model.frustum import mirrored_cells
+
+    def dataset(p):
+        cfg = load_config(write_config(tmp_path / f"c{p}.yaml", real_tiny, augment={"enabled": True, "mirror": p},
+                                       loss={"depth_weight": 1.0, "camera_seg_weight": 0.5}, data={"grid": label_grid(real_tiny)}))
+        return BevDataset(real_tiny, "train", cfg, train=True)
+
+    plain, always, half = dataset(0.0), dataset(1.0), dataset(0.5)
+    grid = plain.grid
+    flipped = 0
+    for key in [(2, i) for i in range(8)]:
+        a, m, h = plain[key], always[key], half[key]
+        assert (m["images"] - a["images"].flip(-1)).abs().max() < 1e-6  # the jitter's float steps, in another order
+        for k in ("semantic", "visibility", "depth_target", "camera_semantic"):
+            assert torch.equal(m[k], a[k].flip(-1)), k
+        assert torch.equal(m["point_cell"], torch.from_numpy(mirrored_cells(a["point_cell"].numpy(), grid)))
+        assert not torch.equal(m["semantic"], a["semantic"])  # these frames are not symmetric
+        same = all(torch.equal(h[k], a[k]) for k in a if torch.is_tensor(a[k]))
+        assert same or torch.equal(h["point_cell"], m["point_cell"])
+        flipped += not same
+    assert 0 < flipped < 8
+
+
 def test_images_finished_on_the_device_are_the_workers_images(real_tiny, tmp_path):
     """device_images (a GPU run): samples leave the loader as uint8 with their jitter's draws, and
     `finish` on the batch gives the images the workers would have made (same draws, same steps)."""
