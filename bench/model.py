@@ -10,7 +10,7 @@ inference figures measured alongside in the same run (`*_baseline`, `*_ratio`: H
   from-scratch trunk and the pretrained EfficientNet-Lite0 (`_efficientnet_lite0` figures); the same
   under bf16 autocast (`model.precision: bf16`, `_bf16` figures, and `_bf16_vs_fp32` ratios against
   this checkout's fp32, measured alternating).
-- loading ms per augmented training sample of the default config (192x120 input) and the paper's
+- loading ms per augmented training sample of the default config (256x160 input) and the paper's
   (480x302), one thread: what each loader worker spends per sample (the paper's configuration on a
   GPU waits for it: docs/benchmarks.md, "The paper configuration on one GPU").
 - cylindrical rectification (the paper's baseline): ms per four-camera frame, tables per rig.
