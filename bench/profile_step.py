@@ -1,11 +1,13 @@
-"""Where a `cpu_default` training step spends its time, on a data set of yours.
+"""Where a training step spends its time, on a data set of yours.
 
-    PYTHONPATH=. python -m bench.profile_step DATA_ROOT [--steps 20] [--trunk scratch] [--set k=v ...]
+    PYTHONPATH=. python -m bench.profile_step DATA_ROOT [--config cpu_default]
+        [--steps 20] [--trunk NAME] [--set k=v ...]
 
-Runs the training step as model.training does (same loader, model, loss, optimiser), but splits
-the backward at the trunk's and the splat's outputs so that each part's forward and backward is
-timed on its own (the gradients are the same), and times the loader's parts (decoding,
-augmentation, lift geometry) on the same samples in this process. Prints a table of median
+Runs the training step as model.training does (same loader, model, loss with the config's terms,
+optimiser; not the moving average of the weights), but splits the backward at the trunk's and the
+splat's outputs so that each part's forward and backward is timed on its own (the gradients are
+the same), and times the loader's parts (decoding, augmentation, lift geometry) on the same samples
+in this process. Prints a table of median
 milliseconds per step, then torch.profiler's top operators over the same steps.
 """
 
@@ -63,8 +65,10 @@ def loader_parts(ds, indices) -> dict:
 
 
 def main(argv=None):
+    from common.resources import preset
     from common.schema import deep_merge
     from model.config import load_config, parse_overrides
+    from model.cpu import resolve_precision
     from model.losses import total_loss
     from model.splat import splat
 
@@ -72,14 +76,20 @@ def main(argv=None):
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("data", type=Path)
+    ap.add_argument("--config", default="cpu_default",
+                    help="the training config (a file or a preset's name) whose step is profiled; default "
+                         "cpu_default, cpu_medium is the default chain's")
     ap.add_argument("--steps", type=int, default=20)
-    ap.add_argument("--trunk", default="scratch")
+    ap.add_argument("--trunk", default=None, help="model.trunk (default: the config's)")
     ap.add_argument("--set", nargs="*", default=[], help="config overrides key=value")
     ap.add_argument("--no-profiler", action="store_true")
     args = ap.parse_args(argv)
-    over = deep_merge({"data": {"root": str(args.data)}, "model": {"trunk": args.trunk}}, parse_overrides(args.set))
-    cfg = load_config(ROOT / "configs/train/cpu_default.yaml", over)
-    t = cfg["train"]
+    given = {"data": {"root": str(args.data)}, **({"model": {"trunk": args.trunk}} if args.trunk else {})}
+    path = preset(args.config, "train")
+    cfg = load_config(path, deep_merge(given, parse_overrides(args.set)))
+    t, m, lc = cfg["train"], cfg["model"], cfg["loss"]
+    print(f"{path.name}: trunk {m['trunk']} (frozen levels {m['trunk_frozen']}), {m['norm']} norm, input "
+          f"{'x'.join(map(str, cfg['data']['input_size']))}, precision {resolve_precision(m['precision'], torch.device('cpu'))}")
     model, opt, alpha, loader = training_setup(cfg)
     sampler, ds = loader.batch_sampler, loader.dataset
     names = ["data wait", "trunk fwd", "splat index", "splat fwd", "bev encoder+heads fwd", "loss",
@@ -98,24 +108,28 @@ def main(argv=None):
         marks = [time.perf_counter()]
         batch = next(it)
         marks.append(time.perf_counter())
-        depth, ctx = model.lift(batch["images"])
+        depth_logits, ctx = model.lift_logits(batch["images"])
         marks.append(time.perf_counter())
-        index = model._index(batch.get("point_cell"), depth.shape[0])
+        index = model._index(batch.get("point_cell"), depth_logits.shape[0])
         marks.append(time.perf_counter())
-        d2, c2 = depth.detach().requires_grad_(), ctx.detach().requires_grad_()
-        feats = splat(d2, c2, index)
+        l2, c2 = depth_logits.detach().requires_grad_(), ctx.detach().requires_grad_()
+        feats = splat(l2.softmax(2), c2, index)
         marks.append(time.perf_counter())
         f2 = feats.detach().requires_grad_()
-        out = model.bev_outputs(f2, index, *depth.shape[:2], batch.get("intrinsics"))
+        out = model.bev_outputs(f2, index, *depth_logits.shape[:2], batch.get("intrinsics"))
+        out["depth_logits"] = l2  # as LSSFisheye.forward in training: the depth and camera-view terms
+        if model.camera_head is not None:
+            out["camera_semantic"] = model.camera_head(c2.flatten(0, 1)).view(*c2.shape[:2], -1, *c2.shape[-2:])
         marks.append(time.perf_counter())
-        loss, _ = total_loss(out, batch, alpha)
+        loss, _ = total_loss(out, batch, alpha, lc["occlusion_weight"], lc["visibility_weighting"], lc["occlusion_target"],
+                             lc["depth_weight"], lc["camera_seg_weight"], lc["dice_weight"])
         marks.append(time.perf_counter())
         opt.zero_grad(set_to_none=True)
         loss.backward()
         marks.append(time.perf_counter())
         feats.backward(f2.grad)
         marks.append(time.perf_counter())
-        torch.autograd.backward([depth, ctx], [d2.grad, c2.grad])
+        torch.autograd.backward([depth_logits, ctx], [l2.grad, c2.grad])
         marks.append(time.perf_counter())
         torch.nn.utils.clip_grad_norm_(model.parameters(), t["grad_clip"])
         opt.step()
@@ -140,7 +154,10 @@ def main(argv=None):
         print(f"  {k:28s} {v:8.1f}")
     if prof:
         print(prof.key_averages(group_by_input_shape=True).table(sort_by="self_cpu_time_total", row_limit=25, max_name_column_width=40, max_shapes_column_width=60))
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    from common.cli import run_cli
+
+    run_cli(main, prog="bench.profile_step")
