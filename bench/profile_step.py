@@ -7,8 +7,8 @@ Runs the training step as model.training does (same loader, model, loss with the
 optimiser; not the moving average of the weights), but splits the backward at the trunk's and the
 splat's outputs so that each part's forward and backward is timed on its own (the gradients are
 the same), and times the loader's parts (decoding, augmentation, lift geometry) on the same samples
-in this process. Prints a table of median
-milliseconds per step, then torch.profiler's top operators over the same steps.
+in this process. Prints a table of median milliseconds per step, then torch.profiler's top
+operators over the same steps.
 """
 
 from __future__ import annotations
