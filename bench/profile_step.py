@@ -69,7 +69,7 @@ def main(argv=None):
     from common.schema import deep_merge
     from model.config import load_config, parse_overrides
     from model.cpu import resolve_precision
-    from model.losses import total_loss
+    from model.losses import config_loss
     from model.splat import splat
 
     from .model import training_setup
@@ -87,7 +87,7 @@ def main(argv=None):
     given = {"data": {"root": str(args.data)}, **({"model": {"trunk": args.trunk}} if args.trunk else {})}
     path = preset(args.config, "train")
     cfg = load_config(path, deep_merge(given, parse_overrides(args.set)))
-    t, m, lc = cfg["train"], cfg["model"], cfg["loss"]
+    t, m = cfg["train"], cfg["model"]
     print(f"{path.name}: trunk {m['trunk']} (frozen levels {m['trunk_frozen']}), {m['norm']} norm, input "
           f"{'x'.join(map(str, cfg['data']['input_size']))}, precision {resolve_precision(m['precision'], torch.device('cpu'))}")
     model, opt, alpha, loader = training_setup(cfg)
@@ -117,12 +117,9 @@ def main(argv=None):
         marks.append(time.perf_counter())
         f2 = feats.detach().requires_grad_()
         out = model.bev_outputs(f2, index, *depth_logits.shape[:2], batch.get("intrinsics"))
-        out["depth_logits"] = l2  # as LSSFisheye.forward in training: the depth and camera-view terms
-        if model.camera_head is not None:
-            out["camera_semantic"] = model.camera_head(c2.flatten(0, 1)).view(*c2.shape[:2], -1, *c2.shape[-2:])
+        out = model.training_outputs(out, l2, c2)  # the depth and camera-view terms' outputs
         marks.append(time.perf_counter())
-        loss, _ = total_loss(out, batch, alpha, lc["occlusion_weight"], lc["visibility_weighting"], lc["occlusion_target"],
-                             lc["depth_weight"], lc["camera_seg_weight"], lc["dice_weight"])
+        loss, _ = config_loss(out, batch, alpha, cfg["loss"])
         marks.append(time.perf_counter())
         opt.zero_grad(set_to_none=True)
         loss.backward()

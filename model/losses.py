@@ -102,3 +102,10 @@ def total_loss(out: dict, batch: dict, alpha, lam: float = 1.0, use_visibility: 
         dice = dice_loss(out["semantic"], batch["semantic"], batch["visibility"], use_visibility)
         total, parts["dice"] = total + dice_weight * dice, dice.detach()
     return total, parts
+
+
+def config_loss(out: dict, batch: dict, alpha, loss_cfg: dict):
+    """total_loss with the terms and weights of a training config's `loss` section."""
+    return total_loss(out, batch, alpha, loss_cfg["occlusion_weight"], loss_cfg["visibility_weighting"],
+                      loss_cfg["occlusion_target"], loss_cfg["depth_weight"], loss_cfg["camera_seg_weight"],
+                      loss_cfg["dice_weight"])

@@ -121,8 +121,11 @@ class LSSFisheye(nn.Module):
             raise ValueError(f"model: point_cell {tuple(point_cell.shape)} does not match the features {tuple(depth.shape)}")
         index = self._index(point_cell, b)
         out = self.bev_outputs(splat(depth, ctx, index), index, b, n, intrinsics)
-        if self.training:
-            out["depth_logits"] = depth_logits
-            if self.camera_head is not None:
-                out["camera_semantic"] = self.camera_head(ctx.flatten(0, 1)).view(b, n, -1, *ctx.shape[-2:])
+        return self.training_outputs(out, depth_logits, ctx) if self.training else out
+
+    def training_outputs(self, out: dict, depth_logits, ctx) -> dict:
+        """out with what the training losses add: 'depth_logits' and, with the camera head, 'camera_semantic'."""
+        out["depth_logits"] = depth_logits
+        if self.camera_head is not None:
+            out["camera_semantic"] = self.camera_head(ctx.flatten(0, 1)).view(*ctx.shape[:2], -1, *ctx.shape[-2:])
         return out

@@ -34,7 +34,7 @@ from .checkpoint import CheckpointError, build_model, load_weights, read_checkpo
 from .cpu import native_bf16, resolve_precision, tune_cpu
 from .data import BevDataset, DataError, DataWorker
 from .evaluation import validation_scores
-from .losses import class_weights, total_loss
+from .losses import class_weights, config_loss
 from .inference import decode, forward, to_device
 from .run_dir import RunDir
 from .shards import ShardStream, shard_datasets
@@ -432,9 +432,7 @@ def train_one_epoch(run: Run, bar, alpha: torch.Tensor, max_steps: int | None, f
             # DDP averages gradients once, on the last micro-batch
             with run.ddp.no_sync() if run.world > 1 and i < k - 1 else contextlib.nullcontext():
                 out = forward(run.ddp, batch)
-                loss, parts = total_loss(out, batch, alpha, loss_cfg["occlusion_weight"], loss_cfg["visibility_weighting"],
-                                         loss_cfg["occlusion_target"], loss_cfg["depth_weight"], loss_cfg["camera_seg_weight"],
-                                         loss_cfg["dice_weight"])
+                loss, parts = config_loss(out, batch, alpha, loss_cfg)
                 (loss / k if k > 1 else loss).backward()  # per-sample means: k micro-batch means average to the batch's
             step_loss += loss.item() / k
         if t["grad_clip"] > 0:
