@@ -88,7 +88,8 @@ def main(argv=None):
     path = preset(args.config, "train")
     cfg = load_config(path, deep_merge(given, parse_overrides(args.set)))
     t, m = cfg["train"], cfg["model"]
-    print(f"{path.name}: trunk {m['trunk']} (frozen levels {m['trunk_frozen']}), {m['norm']} norm, input "
+    print(f"{path.name}: trunk {m['trunk']} (frozen levels {m['trunk_frozen']}"
+          f"{', depthwise weights frozen' if m['trunk_depthwise_frozen'] else ''}), {m['norm']} norm, input "
           f"{'x'.join(map(str, cfg['data']['input_size']))}, precision {resolve_precision(m['precision'], torch.device('cpu'))}")
     model, opt, alpha, loader = training_setup(cfg)
     sampler, ds = loader.batch_sampler, loader.dataset

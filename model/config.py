@@ -76,6 +76,10 @@ SCHEMA = Section({
         # the pretrained trunk's first levels kept as pretrained (no gradient, BatchNorm at ImageNet's
         # statistics): 1 the stem and the blocks at stride 2, 2 through stride 4, ... (model.efficientnet); 0 none
         "trunk_frozen": Num(0, 5, integer=True, default=0),
+        # the depthwise convolution weights of the pretrained trunk's trained blocks kept as loaded (the
+        # pointwise convolutions, BatchNorm and head still train, gradients still flow through them): their bf16
+        # weight gradients take oneDNN's slow path, about a fifth of a step at 256x160 (docs/model.md)
+        "trunk_depthwise_frozen": Bool(default=False),
         "encoder": Section({
             "widths": List(Num(1, 4096, integer=True), max_length=8, default=[16, 32, 64, 128]),
             "blocks": List(Num(1, 64, integer=True), max_length=8, default=[1, 1, 1]),
@@ -150,6 +154,9 @@ def _semantic_checks(cfg: dict, source: str):
         raise ConfigError(f"{source}: model.stride: must be a power of 2 up to {2 ** len(m['encoder']['widths'])}")
     if m["trunk_frozen"] and m["trunk"] != "efficientnet_lite0":
         raise ConfigError(f"{source}: model.trunk_frozen: only the pretrained trunk (model.trunk: efficientnet_lite0) is kept frozen")
+    if m["trunk_depthwise_frozen"] and m["trunk"] != "efficientnet_lite0":
+        raise ConfigError(f"{source}: model.trunk_depthwise_frozen: only the pretrained trunk (model.trunk: efficientnet_lite0) has "
+                          "loaded depthwise weights to keep")
     if m["trunk_frozen"] >= (m["stride"].bit_length() - 1 if m["trunk"] == "efficientnet_lite0" else 99):
         raise ConfigError(f"{source}: model.trunk_frozen: {m['trunk_frozen']} levels would freeze the features at the stride "
                           f"{m['stride']} the lift reads; at most {m['stride'].bit_length() - 2}")

@@ -83,7 +83,8 @@ class EfficientNetLite0Encoder(nn.Module):
     keep_contiguous = True  # model.cpu leaves it NCHW: its NHWC backward rounds 20x worse
 
     def __init__(self, stride: int = 8, depth_bins: int = 32, context_channels: int = 32, width: int = 128,
-                 norm: str = "group", dropout: float = 0.0, frozen: int = 0):
+                 norm: str = "group", dropout: float = 0.0, frozen: int = 0,
+                 depthwise_frozen: bool = False):
         super().__init__()
         levels = int(round(math.log2(stride)))
         if 2**levels != stride or not 1 <= levels <= 5:
@@ -112,6 +113,11 @@ class EfficientNetLite0Encoder(nn.Module):
         self.frozen = frozen
         for mod in self._frozen_modules():
             mod.requires_grad_(False)
+        # depthwise_frozen: the remaining blocks' depthwise weights too (no weight gradient; the data
+        # gradient still flows through them to the earlier trained blocks)
+        self.depthwise_frozen = depthwise_frozen
+        for b in self.blocks[self.frozen_blocks :] if depthwise_frozen else ():
+            b._depthwise_conv.weight.requires_grad_(False)
         self.train()  # as built, too: a module starts in training mode without a call to train()
         self.register_buffer("mean", torch.tensor(IMAGENET_MEAN).view(1, 3, 1, 1), persistent=False)
         self.register_buffer("std", torch.tensor(IMAGENET_STD).view(1, 3, 1, 1), persistent=False)

@@ -26,7 +26,8 @@ def make_encoder(mcfg: dict) -> nn.Module:
         from .efficientnet import EfficientNetLite0Encoder
 
         return EfficientNetLite0Encoder(mcfg["stride"], d["bins"], c, mcfg["encoder"]["widths"][-1], mcfg["norm"], mcfg["dropout"],
-                                        frozen=mcfg["trunk_frozen"])
+                                        frozen=mcfg["trunk_frozen"],
+                                        depthwise_frozen=mcfg["trunk_depthwise_frozen"])
     return ImageEncoder(mcfg["encoder"]["widths"], mcfg["encoder"]["blocks"], mcfg["stride"], d["bins"], c, mcfg["norm"], mcfg["dropout"])
 
 

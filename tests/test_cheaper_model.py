@@ -1,6 +1,7 @@
 """Levers for less work per step (issue 33), each off by default: model.trunk_frozen (the pretrained
 trunk's first levels stay as loaded: no gradient, BatchNorm at ImageNet's statistics; the same
-function in eval) and model.bev_encoder.separable (depthwise-separable decoder convolutions)."""
+function in eval), model.trunk_depthwise_frozen (the other blocks' depthwise weights stay as loaded)
+and model.bev_encoder.separable (depthwise-separable decoder convolutions)."""
 
 import pytest
 import torch
@@ -11,10 +12,10 @@ from model import build_model
 from model.config import validate
 
 
-def cfg(frozen: int, trunk: str = "efficientnet_lite0", stride: int = 8) -> dict:
+def cfg(frozen: int, trunk: str = "efficientnet_lite0", stride: int = 8, depthwise: bool = False) -> dict:
     return validate({"data": {"input_size": [64, 64], "grid": {"bound": 12.0, "res": 0.5}, "num_workers": 0},
                      "model": {"context_channels": 8, "depth": {"bins": 8}, "bev_encoder": {"widths": [8, 16, 32]},
-                               "trunk": trunk, "trunk_frozen": frozen, "stride": stride}})
+                               "trunk": trunk, "trunk_frozen": frozen, "stride": stride, "trunk_depthwise_frozen": depthwise}})
 
 
 def test_frozen_levels_get_no_gradient_and_keep_their_statistics():
@@ -48,6 +49,31 @@ def test_frozen_levels_get_no_gradient_and_keep_their_statistics():
     assert not enc.stem.training and enc.blocks[enc.frozen_blocks].training
 
 
+def test_frozen_depthwise_weights_get_no_gradient_but_pass_one_on():
+    rig = load_rig("configs/rigs/default.yaml")
+    torch.manual_seed(0)
+    plain = build_model(cfg(2), rig)
+    torch.manual_seed(0)
+    model = build_model(cfg(2, depthwise=True), rig)
+    enc = model.encoder
+    x = torch.rand(2, len(rig), 3, 64, 64)
+    plain.eval(), model.eval()
+    with torch.no_grad():  # the same function: only what trains changes
+        assert torch.equal(plain(x)["semantic"], model(x)["semantic"])
+    model.train()
+    out = model(x)
+    sum(v.float().square().mean() for v in out.values()).backward()
+    trained = list(enc.blocks[enc.frozen_blocks :])
+    assert len(trained) == 13  # EfficientNet-Lite0's 16 blocks, 3 of them through stride 4
+    for b in trained:
+        assert b._depthwise_conv.weight.grad is None
+        assert b._project_conv.weight.grad is not None and b._project_conv.weight.grad.abs().sum() > 0
+    # the first trained block's expansion sits before its depthwise conv: its gradient crossed it
+    first = trained[0]._expand_conv.weight.grad
+    assert first is not None and first.abs().sum() > 0
+    assert all(p.grad is not None for p in model.bev.parameters() if p.requires_grad)
+
+
 @pytest.mark.parametrize("frozen, trunk, stride, msg", [
     (1, "scratch", 8, "only the pretrained trunk"),
     (3, "efficientnet_lite0", 8, "at most 2"),
@@ -55,6 +81,8 @@ def test_frozen_levels_get_no_gradient_and_keep_their_statistics():
 def test_trunk_frozen_is_checked(frozen, trunk, stride, msg):
     with pytest.raises(ConfigError, match=msg):
         cfg(frozen, trunk, stride)
+    with pytest.raises(ConfigError, match="trunk_depthwise_frozen: only the pretrained trunk"):
+        cfg(0, "scratch", depthwise=True)
 
 
 def test_a_separable_bev_decoder_does_a_fraction_of_the_work():

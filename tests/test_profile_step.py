@@ -23,8 +23,8 @@ def test_profile_step_times_every_part_with_another_pooling(tmp_path):
 
 
 def test_profile_step_profiles_the_named_config_and_refuses_a_missing_one(tmp_path):
-    """--config cpu_medium profiles the default chain's step (its pretrained, partly frozen trunk, BatchNorm,
-    separable decoder), not cpu_default's; a config that is not there is one line and a non-zero exit."""
+    """--config cpu_medium profiles the default chain's step (its pretrained, partly frozen trunk with its
+    depthwise weights kept, BatchNorm, separable decoder), not cpu_default's; a config that is not there is one line and a non-zero exit."""
     root = write_toy_dataset(tmp_path / "toy", frames=12, splits=("train",))
     small = ["train.threads=1", "data.input_size=[64,40]", "data.grid={bound: 25.0, res: 0.5}",
              "model.bev_encoder.widths=[8,16,16]", "model.precision=fp32",
@@ -32,7 +32,8 @@ def test_profile_step_profiles_the_named_config_and_refuses_a_missing_one(tmp_pa
     r = subprocess.run([sys.executable, "-m", "bench.profile_step", str(root), "--config", "cpu_medium", "--steps", "3",
                         "--no-profiler", "--set", *small], cwd=ROOT, capture_output=True, text=True, timeout=600)
     assert r.returncode == 0, r.stderr[-2000:]
-    assert r.stdout.startswith("cpu_medium.yaml: trunk efficientnet_lite0 (frozen levels 2), batch norm, input 64x40"), r.stdout[:300]
+    first = "cpu_medium.yaml: trunk efficientnet_lite0 (frozen levels 2, depthwise weights frozen), batch norm, input 64x40"
+    assert r.stdout.startswith(first), r.stdout[:300]
     assert float(next(ln for ln in r.stdout.splitlines() if ln.strip().startswith("whole step")).split()[-1]) > 0
     missing = tmp_path / "nope.yaml"
     r = subprocess.run([sys.executable, "-m", "bench.profile_step", str(root), "--config", str(missing)],
