@@ -81,7 +81,7 @@ def main(argv=None):
                          "cpu_default, cpu_medium is the default chain's")
     ap.add_argument("--steps", type=int, default=20)
     ap.add_argument("--trunk", default=None, help="model.trunk (default: the config's)")
-    ap.add_argument("--set", nargs="*", default=[], help="config overrides key=value")
+    ap.add_argument("--set", nargs="+", action="extend", default=[], help="config overrides key=value (repeatable: every --set counts)")
     ap.add_argument("--no-profiler", action="store_true")
     args = ap.parse_args(argv)
     given = {"data": {"root": str(args.data)}, **({"model": {"trunk": args.trunk}} if args.trunk else {})}

@@ -48,7 +48,7 @@ def main(argv=None) -> int:
     ap.add_argument("data")
     ap.add_argument("--steps", type=int, default=30)
     ap.add_argument("--baseline", default=BASELINE)
-    ap.add_argument("--set", nargs="*", default=[])
+    ap.add_argument("--set", nargs="+", action="extend", default=[], help="config overrides key=value (repeatable)")
     a = ap.parse_args(argv)
     data = str(Path(a.data).resolve())
     with tempfile.TemporaryDirectory() as tmp:

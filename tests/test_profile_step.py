@@ -27,13 +27,15 @@ def test_profile_step_profiles_the_named_config_and_refuses_a_missing_one(tmp_pa
     depthwise weights kept, BatchNorm, separable decoder), not cpu_default's; a config that is not there is one line and a non-zero exit."""
     root = write_toy_dataset(tmp_path / "toy", frames=12, splits=("train",))
     small = ["train.threads=1", "data.input_size=[64,40]", "data.grid={bound: 25.0, res: 0.5}",
-             "model.bev_encoder.widths=[8,16,16]", "model.precision=fp32",
+             "model.bev_encoder.widths=[8,16,16]",
              "loss.depth_weight=0", "loss.camera_seg_weight=0"]  # the toy data set has no EXR passes
+    # a second --set adds to the first (it once replaced it, dropping the first one's fields)
     r = subprocess.run([sys.executable, "-m", "bench.profile_step", str(root), "--config", "cpu_medium", "--steps", "3",
-                        "--no-profiler", "--set", *small], cwd=ROOT, capture_output=True, text=True, timeout=600)
+                        "--no-profiler", "--set", "model.precision=fp32", "--set", *small],
+                       cwd=ROOT, capture_output=True, text=True, timeout=600)
     assert r.returncode == 0, r.stderr[-2000:]
     first = "cpu_medium.yaml: trunk efficientnet_lite0 (frozen levels 2, depthwise weights frozen), batch norm, input 64x40"
-    assert r.stdout.startswith(first), r.stdout[:300]
+    assert r.stdout.startswith(first + ", precision fp32"), r.stdout[:300]
     assert float(next(ln for ln in r.stdout.splitlines() if ln.strip().startswith("whole step")).split()[-1]) > 0
     missing = tmp_path / "nope.yaml"
     r = subprocess.run([sys.executable, "-m", "bench.profile_step", str(root), "--config", str(missing)],
