@@ -10,7 +10,10 @@
 - channels_last weights: oneDNN's convolutions and GroupNorm run faster in NHWC on CPU, and the
   splat already hands the BEV encoder an NHWC grid. A module with `keep_contiguous = True` (the
   pretrained EfficientNet trunk, whose BatchNorm/depthwise backward in NHWC was 20x further from a
-  float64 reference than in NCHW: 2.5e-2 against 1e-3 relative) stays NCHW.
+  float64 reference than in NCHW: 2.5e-2 against 1e-3 relative) stays NCHW in fp32; in bf16 it
+  runs NHWC too: its gradients are as far from float64 either way (bf16's rounding, 0.38 relative
+  with batch statistics), and its forward + backward takes 0.81x (docs/model.md, "The trunk in NHWC
+  in bf16").
 
 `train.threads` (> 0) overrides the count. The GPU path is left as it was.
 
@@ -74,13 +77,13 @@ def tune_cpu(cfg: dict, device: torch.device, model: torch.nn.Module | None = No
     threads = cfg["train"]["threads"] or compute_threads(processes)
     torch.set_num_threads(threads)
     if model is not None:
-        channels_last(model)
+        channels_last(model, every=resolve_precision(cfg["model"]["precision"], device) == "bf16")
 
 
-def channels_last(model: torch.nn.Module) -> torch.nn.Module:
-    """The model's 4-D weights in NHWC, but for modules marked `keep_contiguous`."""
+def channels_last(model: torch.nn.Module, every: bool = False) -> torch.nn.Module:
+    """The model's 4-D weights in NHWC, but for modules marked `keep_contiguous` (`every`: theirs too)."""
     model.to(memory_format=torch.channels_last)
-    for m in model.modules():
+    for m in model.modules() if not every else ():
         if getattr(m, "keep_contiguous", False):
             m.to(memory_format=torch.contiguous_format)
     return model

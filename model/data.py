@@ -188,7 +188,7 @@ class BevDataset(Dataset):
             sem, vis = sem[:, ::-1], vis[:, ::-1]
         return {
             **sample,
-            "images": images,
+            "images": images.contiguous(),  # NCHW (the jitter returns NHWC): a loader in this process (data.num_workers 0) hands the trunk what a worker does
             "semantic": torch.from_numpy(sem.astype(np.int64)),
             "visibility": torch.from_numpy(np.array(vis, dtype=np.float32)),  # a copy: `vis` may be the cache's
             "index": i,

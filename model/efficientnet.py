@@ -80,7 +80,7 @@ class EfficientNetLite0Encoder(nn.Module):
     """Same interface as model.encoder.ImageEncoder: images -> (depth logits, context) at stride s."""
 
     total_stride = 32
-    keep_contiguous = True  # model.cpu leaves it NCHW: its NHWC backward rounds 20x worse
+    keep_contiguous = True  # model.cpu leaves it NCHW in fp32: its NHWC backward rounds worse there (not in bf16)
 
     def __init__(self, stride: int = 8, depth_bins: int = 32, context_channels: int = 32, width: int = 128,
                  norm: str = "group", dropout: float = 0.0, frozen: int = 0,
