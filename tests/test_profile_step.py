@@ -42,3 +42,17 @@ def test_profile_step_profiles_the_named_config_and_refuses_a_missing_one(tmp_pa
                        cwd=ROOT, capture_output=True, text=True, timeout=600)
     assert r.returncode != 0 and "Traceback" not in r.stderr
     assert len(r.stderr.strip().splitlines()) == 1 and "nope.yaml" in r.stderr, r.stderr
+
+
+def test_trunk_layout_times_both_layouts_and_measures_their_gradients():
+    """bench.trunk_layout: a row per layout and precision; fp32's gradients within float32 rounding
+    of the float64 copy's, bf16's far further in either layout (the figure model.cpu's rule rests on)."""
+    r = subprocess.run([sys.executable, "-m", "bench.trunk_layout", "--images", "2", "--rounds", "1", "--threads", "1"],
+                       cwd=ROOT, capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr[-2000:]
+    rows = {tuple(ln.split()[:2]): [float(v) for v in ln.split()[2:]] for ln in r.stdout.splitlines()
+            if ln.split()[:1] in (["NCHW"], ["NHWC"])}
+    assert set(rows) == {(a, b) for a in ("NCHW", "NHWC") for b in ("fp32", "bf16")}, r.stdout
+    for (layout, precision), (ms, err) in rows.items():
+        assert ms > 0 and err > 0, (layout, precision)
+        assert (err < 1e-2) == (precision == "fp32"), (layout, precision, err)

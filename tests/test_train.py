@@ -385,6 +385,26 @@ def test_a_cached_frame_gives_the_samples_of_a_fresh_read(real_tiny, tmp_path):
     assert torch.equal(ds[keys[0]]["visibility"], want[0]["visibility"])
 
 
+def test_a_loader_without_workers_gives_the_workers_samples_nchw(real_tiny, tmp_path):
+    """data.num_workers 0 builds the samples in the training process: the same tensors as a worker's,
+    and the images NCHW (kornia's colour jitter returns them NHWC, and an NHWC batch ran the trunk
+    NHWC: another rounding, a run that differed from the same run with a worker from step 1)."""
+    from torch.utils.data import DataLoader
+
+    from model.config import load_config
+    from model.data import BevDataset
+
+    cfg = load_config(write_config(tmp_path / "c.yaml", real_tiny, augment={"enabled": True}, data={"grid": label_grid(real_tiny)}))
+    ds = BevDataset(real_tiny, "train", cfg, train=True)
+    keys = [[(2, 0), (2, 1)]]
+    here, worker = (next(iter(DataLoader(ds, batch_sampler=keys, num_workers=n))) for n in (0, 1))
+    assert here.keys() == worker.keys()
+    for k, v in worker.items():
+        assert torch.equal(here[k], v), k
+    assert here["images"].is_contiguous() and worker["images"].is_contiguous()
+    assert ds[(2, 0)]["images"].is_contiguous()
+
+
 def test_a_mirrored_sample_is_the_sample_flipped_with_its_geometry_and_labels(real_tiny, tmp_path):
     """augment.mirror: a mirrored sample is the same epoch's unmirrored sample (same view transforms
     and colour draws) with every image, camera-view target and label flipped along y and the lift
