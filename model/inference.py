@@ -117,7 +117,7 @@ class RigModel:
             if self.rectify:
                 img = self.rectify(src.name, img)
             out.append(warp_image(img, rc.camera, t))
-        return (torch.from_numpy(np.stack(out)).permute(0, 3, 1, 2).float() / 255.0)[None]
+        return (torch.from_numpy(np.stack(out)).permute(0, 3, 1, 2).contiguous().float() / 255.0)[None]  # NCHW, as BevDataset hands eval.py its images
 
     @torch.no_grad()
     def __call__(self, images: dict) -> Prediction:
