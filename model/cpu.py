@@ -83,7 +83,8 @@ def tune_cpu(cfg: dict, device: torch.device, model: torch.nn.Module | None = No
 def channels_last(model: torch.nn.Module, every: bool = False) -> torch.nn.Module:
     """The model's 4-D weights in NHWC, but for modules marked `keep_contiguous` (`every`: theirs too)."""
     model.to(memory_format=torch.channels_last)
-    for m in model.modules() if not every else ():
-        if getattr(m, "keep_contiguous", False):
-            m.to(memory_format=torch.contiguous_format)
+    if not every:
+        for m in model.modules():
+            if getattr(m, "keep_contiguous", False):
+                m.to(memory_format=torch.contiguous_format)
     return model
