@@ -242,7 +242,7 @@ def _child_train(data_root: str, steps: int, trunk: str = "scratch", precision: 
     for k in range(steps + 1):
         t0 = time.perf_counter()
         batch = next(it)
-        out = model(batch["images"], batch["point_cell"], batch["intrinsics"])
+        out = model(batch["images"], batch["point_cell"], batch.get("intrinsics"))
         loss, _ = total_loss(out, batch, alpha)
         opt.zero_grad()
         loss.backward()

@@ -47,7 +47,7 @@ def loader_parts(ds, indices) -> dict:
         rng = np.random.default_rng([0, 0, i])
         if a:
             tr = [random_transform(rc.camera, ds.input_size, rng, a["scale"], a["rotation_deg"], a["crop"]) for rc in frustum.rig]
-            frustum.geometry(tr)
+            frustum.geometry(tr, intrinsics=frustum.reads_intrinsics)  # as the data set does
         else:
             tr = frustum.nominal_transforms()
         t2 = time.perf_counter()

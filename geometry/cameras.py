@@ -64,19 +64,33 @@ def _safe_div(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
 
 def _poly(coeffs: torch.Tensor, t: torch.Tensor, first_power: int = 1) -> torch.Tensor:
     """sum_i c_i t^(i + first_power), Horner."""
+    return _horner(coeffs.unbind(-1), t, first_power)
+
+
+def _horner(coeffs: tuple, t: torch.Tensor, first_power: int) -> torch.Tensor:
     acc = torch.zeros_like(t)
-    for c in reversed(coeffs.unbind(-1)):
+    for c in reversed(coeffs):
         acc = acc * t + c
     return acc * t**first_power if first_power else acc
 
 
-def _poly_deriv(coeffs: torch.Tensor, t: torch.Tensor, first_power: int = 1) -> torch.Tensor:
-    acc = torch.zeros_like(t)
-    n = coeffs.shape[-1]
-    for i in reversed(range(n)):
-        power = i + first_power
-        acc = acc * t + coeffs[..., i] * power
-    return acc * t ** (first_power - 1) if first_power > 1 else acc
+class _Poly:
+    """t -> sum_i c_i t^(i + first_power) (first_power >= 1) and its derivative, for a Newton solve
+    (`_invert_monotonic`): the coefficients split, and the derivative's (c_i (i + first_power))
+    formed, once rather than at each of the solve's ~7 steps (a lift's few hundred points per
+    camera spend their time in per-operation overhead); the same arithmetic as `_poly`."""
+
+    def __init__(self, coeffs: torch.Tensor, first_power: int = 1):
+        n = coeffs.shape[-1]
+        self.first_power = first_power
+        self.coeffs = coeffs.unbind(-1)
+        self.deriv_coeffs = (coeffs * torch.arange(first_power, first_power + n, dtype=coeffs.dtype, device=coeffs.device)).unbind(-1)
+
+    def __call__(self, t: torch.Tensor) -> torch.Tensor:
+        return _horner(self.coeffs, t, self.first_power)
+
+    def deriv(self, t: torch.Tensor) -> torch.Tensor:
+        return _horner(self.deriv_coeffs, t, self.first_power - 1)
 
 
 def _invert_monotonic(f, df, y: torch.Tensor, t_max: float, guess: torch.Tensor) -> torch.Tensor:
@@ -427,15 +441,9 @@ class _PolyRadial(RadialCamera):
         return _poly(self._coeffs(theta), theta, self.first_power)
 
     def theta_of_rho(self, rho):
-        c = self._coeffs(rho)
+        p = _Poly(self._coeffs(rho), self.first_power)
         d0 = float(self._poly_coeffs()[0])  # rho'(0)
-        return _invert_monotonic(
-            lambda t: _poly(c, t, self.first_power),
-            lambda t: _poly_deriv(c, t, self.first_power),
-            rho,
-            self.theta_max,
-            rho / d0,
-        )
+        return _invert_monotonic(p, p.deriv, rho, self.theta_max, rho / d0)
 
 
 class OpenCVFisheye(_PolyRadial):
@@ -500,7 +508,8 @@ class KBTheta(RadialCamera):
 
     def rho(self, theta):
         c = self._t(self.params["p"], theta)
-        return _invert_monotonic(lambda t: _poly(c, t), lambda t: _poly_deriv(c, t), theta, self._rho_max, theta / c[0])
+        p = _Poly(c)
+        return _invert_monotonic(p, p.deriv, theta, self._rho_max, theta / c[0])
 
     def theta_of_rho(self, rho):
         return _poly(self._t(self.params["p"], rho), rho)
@@ -711,7 +720,8 @@ class Mei(Camera):
             c = torch.tensor([1.0, 0.0, k1, 0.0, k2], dtype=rd.dtype)
             r2_hi = min(self.r2_radial, self.r2_max)
             r_hi = math.sqrt(r2_hi) if math.isfinite(r2_hi) else 1e6
-            ru = _invert_monotonic(lambda t: _poly(c, t), lambda t: _poly_deriv(c, t), rd, r_hi, rd)
+            p = _Poly(c)
+            ru = _invert_monotonic(p, p.deriv, rd, r_hi, rd)
             scale = _safe_div(ru, rd) + (rd <= _EPS).to(rd.dtype)
             x, y = xd_ * scale, yd_ * scale
             for _ in range(100):

@@ -2,11 +2,11 @@
 
 Each camera image is brought to the config's input size by a view transform that moves the camera
 with it (`model.augment`). An augmented sample carries the lift geometry of its cameras
-(`point_cell`, which BEV cell every lifted point lands in, and their intrinsics descriptors, from
-`model.frustum.Frustum`); a sample without augmentation carries none, and the model uses its
-cached nominal geometry. A frame rendered through its own (jittered) rig (`FrameRef.own_rig`) is
-lifted with that rig: in a split holding such frames every sample carries its geometry, so a batch
-never mixes samples with and without it. Augmentation is drawn
+(`point_cell`, which BEV cell every lifted point lands in, and, for the intrinsics-embedding
+pooling, their intrinsics descriptors, from `model.frustum.Frustum`); a sample without
+augmentation carries none, and the model uses its cached nominal geometry. A frame rendered
+through its own (jittered) rig (`FrameRef.own_rig`) is lifted with that rig: in a split holding
+such frames every sample carries its geometry, so a batch never mixes samples with and without it. Augmentation is drawn
 from a generator seeded by (seed, epoch, sample index), so a sample is the same whichever worker or
 DDP process loads it, and a resumed run sees the same data as an uninterrupted one. A mirrored
 sample (`augment.mirror`) has its images, camera-view targets and labels flipped along y and its
@@ -156,7 +156,9 @@ class BevDataset(Dataset):
             a = self.augment
             transforms = [random_transform(rc.camera, self.input_size, rng, a["scale"], a["rotation_deg"], a["crop"]) for rc in frustum.rig]
             mirrored = a["mirror"] > 0 and bool(rng.random() < a["mirror"])  # drawn last: other draws as without it
-            sample["point_cell"], sample["intrinsics"] = frustum.geometry(transforms, mirrored)
+            sample["point_cell"], intrinsics = frustum.geometry(transforms, mirrored, intrinsics=frustum.reads_intrinsics)
+            if intrinsics is not None:  # else the model's pooling never reads them
+                sample["intrinsics"] = intrinsics
         else:
             transforms = frustum.nominal_transforms()
             if self.carry_geometry:

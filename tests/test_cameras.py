@@ -285,3 +285,17 @@ def test_the_kept_domain_limit_is_each_polynomials_own():
     assert a.cropped(3, 2, 20, 10).theta_max == a.theta_max
     b = camera_from_dict(dict(BASE, model="opencv_fisheye", k=[-0.2, 0, 0, 0]))
     assert b.theta_max == pytest.approx(1 / math.sqrt(0.6), abs=1e-9) != a.theta_max
+
+
+@pytest.mark.parametrize("first_power", [1, 3])
+def test_the_newton_solves_polynomial_is_the_polynomial_and_its_derivative(first_power):
+    """_Poly (the split coefficients a Newton solve evaluates ~7 times) gives _poly's values to the
+    last bit and the derivative autograd finds, for a first power of 1 and above."""
+    from geometry.cameras import _Poly, _poly
+
+    c = torch.tensor([1.0, 0.0, -0.02, 0.0, 0.003, 0.0, 1e-4], dtype=torch.float64)
+    t = torch.linspace(0.0, 1.6, 101, dtype=torch.float64, requires_grad=True)
+    p = _Poly(c, first_power)
+    assert torch.equal(p(t), _poly(c, t, first_power))
+    (grad,) = torch.autograd.grad(_poly(c, t, first_power).sum(), t)
+    assert torch.allclose(p.deriv(t.detach()), grad, rtol=1e-12, atol=1e-12)

@@ -475,3 +475,30 @@ def test_sigterm_to_the_process_group_stops_a_run_with_loader_workers_gracefully
     assert proc.returncode == 130, err[-2000:]
     assert "interrupted;" in err and "killed by signal" not in err
     assert torch.load(latest, weights_only=False)["step"] > 0
+
+
+def test_only_the_intrinsics_pooling_gets_the_samples_intrinsics_descriptors(real_tiny, tmp_path):
+    """An augmented sample carries its cameras' intrinsics descriptors only where the pooling reads
+    them (intrinsics_embedding; computing them for every pooling was a tenth of a sample's loading
+    time): sum pooling's output is the same without them, the embedding's are the augmented cameras'."""
+    from model import build_model
+    from model.config import load_config
+    from model.data import BevDataset
+
+    def dataset(pooling):
+        cfg = load_config(write_config(tmp_path / f"{pooling}.yaml", real_tiny, augment={"enabled": True},
+                                       model={"pooling": pooling}, data={"grid": label_grid(real_tiny)}))
+        return cfg, BevDataset(real_tiny, "train", cfg, train=True)
+
+    cfg, plain = dataset("sum")
+    _, embedded = dataset("intrinsics_embedding")
+    s, e = plain[(2, 0)], embedded[(2, 0)]
+    assert "intrinsics" not in s and torch.equal(s["point_cell"], e["point_cell"])
+    assert e["intrinsics"].shape == embedded.frustum.nominal[1].shape
+    assert not torch.equal(e["intrinsics"], embedded.frustum.nominal[1])  # the augmented cameras' own
+    torch.manual_seed(0)
+    model = build_model(cfg, plain.index.rig).eval()
+    with torch.no_grad():
+        without = model(s["images"][None], s["point_cell"][None])["semantic"]
+        given = model(s["images"][None], s["point_cell"][None], e["intrinsics"][None])["semantic"]
+    assert torch.equal(without, given)
