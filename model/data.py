@@ -8,9 +8,9 @@ augmentation carries none, and the model uses its cached nominal geometry. A fra
 through its own (jittered) rig (`FrameRef.own_rig`) is lifted with that rig: in a split holding
 such frames every sample carries its geometry, so a batch never mixes samples with and without it.
 Augmentation is drawn from a generator seeded by (seed, epoch, sample index), so a sample is the
-same whichever worker or DDP process loads it, and a resumed run sees the same data as an uninterrupted one. A mirrored
-sample (`augment.mirror`) has its images, camera-view targets and labels flipped along y and its
-lift geometry mirrored (`model.frustum.mirrored_cells`).
+same whichever worker or DDP process loads it, and a resumed run sees the same data as an
+uninterrupted one. A mirrored sample (`augment.mirror`) has its images, camera-view targets and
+labels flipped along y and its lift geometry mirrored (`model.frustum.mirrored_cells`).
 On a GPU (`device_images`) the images leave the loader as 8 bits with their colour jitter's draws, and
 `finish` converts and jitters the batch on the device (the same draws, the same kornia steps).
 """
