@@ -36,7 +36,7 @@ browser:
 	  apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $$missing >/dev/null; \
 	fi
 
-# Options: make dataset PRESET=medium DATA=data/medium WORKERS=2 BACKEND=ray (cluster: RAY_ADDRESS); make train CONFIG=...; make eval SPLIT=hard
+# Options: make dataset PRESET=medium DATA=data/medium WORKERS=2 BACKEND=ray (cluster: RAY_ADDRESS); make train CONFIG=... MINUTES=30 (train.minutes); make eval SPLIT=hard
 PRESET ?= medium
 DATA ?= data/$(PRESET)
 CONFIG ?= configs/train/cpu_medium.yaml
@@ -55,7 +55,7 @@ dataset: setup
 	$(PYTHON) -m dataset_tools dataset --config configs/dataset/$(PRESET).yaml --out $(DATA) --backend $(BACKEND) $(if $(WORKERS),--workers $(WORKERS)) $(if $(RERENDER),--rerender-changed)
 
 train: setup
-	$(PYTHON) train.py --config $(CONFIG) --out $(RUN)
+	$(PYTHON) train.py --config $(CONFIG) --out $(RUN) $(if $(MINUTES),--set train.minutes=$(MINUTES))
 
 eval: setup
 	$(PYTHON) eval.py --checkpoint $(RUN) --split $(SPLIT)

@@ -15,6 +15,7 @@ from common.files import parse_yaml, read_yaml
 from common.resources import preset
 from common.schema import Bool, Field, List, Num, OneOf, Section, Str, deep_merge, is_number
 
+from .minutes import SKIP, TIMED
 from .pooling import POOLINGS
 
 
@@ -122,6 +123,9 @@ SCHEMA = Section({
     "train": Section({
         "epochs": Num(1, 10**6, integer=True, default=120),
         "max_steps": Num(0, 10**9, integer=True, default=0),  # 0: no limit
+        # the whole epochs (at most train.epochs) that fit in these minutes of train.py on this machine, from
+        # its own first steps, timed during the warm-up; recorded in the checkpoints (model.minutes). 0: train.epochs
+        "minutes": Num(0, 10**6, default=0),
         "batch_size": Num(1, 4096, integer=True, default=4),  # global: split across DDP processes
         "accumulate": Num(1, 1024, integer=True, default=1),  # batches per optimiser step: an effective batch of batch_size x accumulate
         "lr": Num(above=0, hi=10.0, default=1e-3),
@@ -165,6 +169,11 @@ def _semantic_checks(cfg: dict, source: str):
         raise ConfigError(f"{source}: model.depth: need min < max")
     if m["z_range"][0] >= m["z_range"][1]:
         raise ConfigError(f"{source}: model.z_range: must be [low, high] with low < high")
+    t = cfg["train"]
+    if t["minutes"] and t["lr_schedule"] == "cosine" and t["warmup_steps"] < SKIP + TIMED:
+        raise ConfigError(f"{source}: train.minutes: needs train.warmup_steps >= {SKIP + TIMED} with the cosine schedule (the "
+                          f"steps are timed during the warm-up, whose learning rate does not depend on the total; have "
+                          f"{t['warmup_steps']})")
     a = cfg["augment"]["scale"]
     if not a[0] <= a[1]:
         raise ConfigError(f"{source}: augment.scale: must be [low, high] with 0 < low <= high")

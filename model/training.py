@@ -36,6 +36,7 @@ from .data import BevDataset, DataError, DataWorker
 from .evaluation import validation_scores
 from .losses import class_weights, config_loss
 from .inference import decode, forward, to_device
+from .minutes import MinutesBudget, clock, describe
 from .run_dir import RunDir
 from .shards import ShardStream, shard_datasets
 
@@ -153,6 +154,8 @@ class Run:
     ddp: torch.nn.Module | None = None
     stop: GracefulStop | None = None
     ema: dict | None = None  # train.ema: the averaged weights (state_dict tensors)
+    minutes: dict | None = None  # train.minutes: the decision (model.minutes), recorded in the checkpoints
+    budget: MinutesBudget | None = None  # train.minutes before the decision
 
     @property
     def total_steps(self) -> int:
@@ -283,7 +286,7 @@ def checkpoint_state(run: Run) -> dict:
     weights = {"model": run.model.state_dict()} if run.ema is None else {"model": run.ema, "raw": run.model.state_dict()}
     return {"config": run.cfg, "rig": run.index.rig.to_dict(), "num_classes": len(run.index.class_names),
             "class_names": list(run.index.class_names), **weights, "optimizer": run.opt.state_dict(), "step": run.step, "epoch": run.epoch,
-            "step_in_epoch": run.step_in_epoch, "best": run.best, "rng": torch.get_rng_state(),
+            "step_in_epoch": run.step_in_epoch, "best": run.best, "minutes": run.minutes, "rng": torch.get_rng_state(),
             "cuda_rng": torch.cuda.get_rng_state(run.device) if run.device.type == "cuda" else None}
 
 
@@ -304,10 +307,18 @@ def resume(run: Run) -> None:
     for g in run.opt.param_groups:  # the config's learning rate, also when changed for the resume (--set)
         g["lr"], g["weight_decay"] = run.cfg["train"]["lr"], run.cfg["train"]["weight_decay"]
     run.step, run.epoch, run.step_in_epoch, run.best = ckpt["step"], ckpt["epoch"], ckpt["step_in_epoch"], ckpt["best"]
+    if run.cfg["train"]["minutes"] and ckpt.get("minutes"):  # the epochs it decided (train.minutes 0 and train.epochs: more)
+        decide_epochs(run, ckpt["minutes"])
     if run.device.type == "cuda" and ckpt["cuda_rng"] is not None:
         torch.cuda.set_rng_state(ckpt["cuda_rng"], run.device)
     if run.main and not run.quiet:
         print(f"resuming from {run.latest} at step {run.step} (epoch {run.epoch})", file=sys.stderr)
+
+
+def decide_epochs(run: Run, record: dict) -> None:
+    """train.minutes decided: the run trains record['epochs'] epochs (its config says so from here on)."""
+    run.minutes, run.budget = record, None
+    run.cfg = {**run.cfg, "train": {**run.cfg["train"], "epochs": record["epochs"]}}
 
 
 def validate(run: Run) -> dict | None:
@@ -444,6 +455,13 @@ def train_one_epoch(run: Run, bar, alpha: torch.Tensor, max_steps: int | None, f
         if run.ema is not None:
             update_ema(run)
         run.step_in_epoch += 1
+        if run.budget is not None and (record := run.budget.after_step(run.step, epoch_steps or len(run.train_ds) // effective_batch(t),
+                                                                        run.world, run.device)):
+            decide_epochs(run, record)
+            bar.total = run.total_steps
+            bar.refresh()
+            if run.main and not run.quiet:
+                bar.write(describe(record, run.total_steps), file=sys.stderr)
         samples += effective_batch(t)
         run.history.append(step_loss)
         if not math.isfinite(run.history[-1]):
@@ -464,18 +482,23 @@ def train_one_epoch(run: Run, bar, alpha: torch.Tensor, max_steps: int | None, f
 
 def train(cfg: dict, out_dir: Path, quiet: bool = False) -> dict:
     """Train a validated config in the run folder `out_dir` (resuming from its latest.pt), to
-    train.epochs or train.max_steps. -> {'step', 'losses' (this call's), 'val' (the last
-    validation metrics or None), 'best' (best validation mIoU)}. A stop request (Ctrl-C, SIGTERM)
-    saves latest.pt and raises KeyboardInterrupt."""
+    train.epochs (or the epochs train.minutes decides: model.minutes) or train.max_steps.
+    -> {'step', 'losses' (this call's), 'val' (the last validation metrics or None), 'best' (best
+    validation mIoU)}. A stop request (Ctrl-C, SIGTERM) saves latest.pt and raises KeyboardInterrupt."""
     from tqdm import tqdm
 
     from .tensorboard_log import TensorBoardLog
 
+    started = clock()
     run = prepare(cfg, out_dir, quiet)
     if run.main and not quiet:  # once: what each camera of the rig the model is built on became
         run.index.rig.print_description(run.index.root)
     resume(run)
     t = cfg["train"]
+    if t["minutes"] and run.minutes is None:
+        run.budget = MinutesBudget(run.cfg, run.step, started)
+    elif run.minutes is not None and run.main and not quiet:
+        print(f"{describe(run.minutes, run.total_steps)} (as {run.latest} decided)", file=sys.stderr)
     run.ddp = torch.nn.parallel.DistributedDataParallel(run.model) if run.world > 1 else run.model
     alpha = class_weights(cfg["loss"]["class_weights"]).to(run.device)
     if run.main:
@@ -484,9 +507,9 @@ def train(cfg: dict, out_dir: Path, quiet: bool = False) -> dict:
     max_steps = t["max_steps"] or None
     bar = tqdm(total=run.total_steps, initial=run.step, disable=not run.main or quiet, desc="train", dynamic_ncols=True)
     done = max_steps is not None and run.step >= max_steps
-    feed = None if done or run.epoch >= t["epochs"] or isinstance(run.train_ds, ShardStream) else RunFeed(run)
+    feed = None if done or run.epoch >= run.cfg["train"]["epochs"] or isinstance(run.train_ds, ShardStream) else RunFeed(run)
     try:
-        while run.epoch < t["epochs"] and not done:
+        while run.epoch < run.cfg["train"]["epochs"] and not done:  # train.minutes may decide fewer epochs on the way
             done = train_one_epoch(run, bar, alpha, max_steps, feed)
             if run.stop.requested:
                 if run.main:

@@ -502,3 +502,64 @@ def test_only_the_intrinsics_pooling_gets_the_samples_intrinsics_descriptors(rea
         without = model(s["images"][None], s["point_cell"][None])["semantic"]
         given = model(s["images"][None], s["point_cell"][None], e["intrinsics"][None])["semantic"]
     assert torch.equal(without, given)
+
+
+FAKE_CLOCK = """import sys, model.minutes as m, model.training as tr
+ticks = iter([0.0, 0.0, 10.0])  # train()'s start, this process's step 5, the decision step (15): 1 s a step
+def clock():
+    return next(ticks)
+m.clock = tr.clock = clock
+import train
+sys.exit(train.main(sys.argv[1:]))
+"""
+
+
+def test_a_minutes_budget_decides_the_epochs_at_the_warm_ups_end_and_trains_as_a_run_given_them(real_tiny, tmp_path):
+    """train.minutes: steps 5-15 timed (here a clock saying 1 s a step and 10 s spent), the run
+    decides at the warm-up's end the whole epochs that fit (30 s: 35 steps -> 11 epochs of 3 steps,
+    under train.epochs 12) and trains bit for bit as a run given train.epochs 11; the decision is in
+    the checkpoints, a resume keeps it whatever train.minutes says now, and train.minutes 0 hands the
+    run back to train.epochs."""
+    # 14 frames, batch 4: 3 steps per epoch
+    base = dict(batch_size=4, lr_schedule="cosine", warmup_steps=15, checkpoint_every=1000)
+    budget = write_config(tmp_path / "m.yaml", real_tiny, train={**base, "epochs": 12, "minutes": 0.5}, data={"grid": label_grid(real_tiny)})
+    given = write_config(tmp_path / "e.yaml", real_tiny, train={**base, "epochs": 11}, data={"grid": label_grid(real_tiny)})
+    env = dict(os.environ, PYTHONPATH=str(ROOT), OMP_NUM_THREADS="1")
+    r = subprocess.run([sys.executable, "-c", FAKE_CLOCK, "--config", str(budget), "--out", str(tmp_path / "m")],
+                       cwd=ROOT, env=env, capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr[-3000:]
+    assert "train.minutes 0.5: 11 epochs (33 steps), from 1.000 s a step over steps 5-15" in r.stderr
+    run_train(given, tmp_path / "e")
+    a, pa = params(tmp_path / "m" / "latest.pt")
+    b, pb = params(tmp_path / "e" / "latest.pt")
+    assert a["step"] == b["step"] == 33
+    assert a["minutes"] == {"minutes": 0.5, "epochs": 11, "s_per_step": 1.0, "timed": [5, 15], "spent_s": 10.0}
+    assert a["config"]["train"]["epochs"] == 11 and b["minutes"] is None
+    assert all(torch.equal(pa[k], pb[k]) for k in pa)
+
+    run_train(budget, tmp_path / "m", "--set", "train.minutes=100")  # resumed: the recorded 11 epochs stand
+    assert params(tmp_path / "m" / "latest.pt")[0]["step"] == 33
+    run_train(budget, tmp_path / "m", "--set", "train.minutes=0")  # no budget: train.epochs (12) again
+    assert params(tmp_path / "m" / "latest.pt")[0]["step"] == 36
+
+
+def test_the_epochs_that_fit_the_minutes():
+    from model.minutes import decision_step, epochs_for_minutes
+
+    # 40 min, 60 s spent at step 50, 0.8 s a step, 80 steps an epoch: (50 + 2340 / 0.8) // 80 = 37
+    assert epochs_for_minutes(40, 60, 0.8, 50, 80, cap=50) == 37
+    assert epochs_for_minutes(40, 60, 0.8, 50, 80, cap=30) == 30  # train.epochs caps it
+    assert epochs_for_minutes(1, 120, 0.8, 50, 80, cap=50) == 1  # spent already: the epoch it is in
+    assert epochs_for_minutes(1, 120, 0.8, 170, 80, cap=50) == 3
+    assert decision_step({"lr_schedule": "cosine", "warmup_steps": 30}) == 30
+    assert decision_step({"lr_schedule": "cosine", "warmup_steps": 500}) == 50
+    assert decision_step({"lr_schedule": "constant", "warmup_steps": 0}) == 50
+
+
+def test_a_minutes_budget_needs_a_warm_up_to_time_under_the_cosine_schedule():
+    from common.errors import ConfigError
+    from model.config import load_config
+
+    with pytest.raises(ConfigError, match=r"train.minutes: needs train.warmup_steps >= 15 with the cosine schedule"):
+        load_config(ROOT / "configs/train/cpu_default.yaml", {"train": {"minutes": 30, "lr_schedule": "cosine", "warmup_steps": 10}})
+    load_config(ROOT / "configs/train/cpu_default.yaml", {"train": {"minutes": 30}})  # constant schedule: decided at step 50
