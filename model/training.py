@@ -158,10 +158,15 @@ class Run:
     budget: MinutesBudget | None = None  # train.minutes before the decision
 
     @property
+    def epoch_steps(self) -> int:
+        """Optimiser steps of an epoch: its whole effective batches."""
+        return len(self.train_ds) // effective_batch(self.cfg["train"])
+
+    @property
     def total_steps(self) -> int:
-        """Optimiser steps of the whole run: train.max_steps, or every whole effective batch of every epoch."""
+        """Optimiser steps of the whole run: train.max_steps, or every epoch's steps."""
         t = self.cfg["train"]
-        return min(t["max_steps"] or 10**12, len(self.train_ds) // effective_batch(t) * t["epochs"])
+        return min(t["max_steps"] or 10**12, self.epoch_steps * t["epochs"])
 
     @property
     def dir(self) -> RunDir:
@@ -421,7 +426,7 @@ def train_one_epoch(run: Run, bar, alpha: torch.Tensor, max_steps: int | None, f
         per_step = 1
     else:
         batches, per_step = feed.batches, feed.per_step
-        epoch_steps = len(run.train_ds) // effective_batch(t)
+        epoch_steps = run.epoch_steps
     t0, samples = time.time(), 0
     while True:
         if epoch_steps is not None and run.step_in_epoch >= epoch_steps:
@@ -455,8 +460,7 @@ def train_one_epoch(run: Run, bar, alpha: torch.Tensor, max_steps: int | None, f
         if run.ema is not None:
             update_ema(run)
         run.step_in_epoch += 1
-        if run.budget is not None and (record := run.budget.after_step(run.step, epoch_steps or len(run.train_ds) // effective_batch(t),
-                                                                        run.world, run.device)):
+        if run.budget is not None and (record := run.budget.after_step(run.step, run.epoch_steps, run.world, run.device)):
             decide_epochs(run, record)
             bar.total = run.total_steps
             bar.refresh()
