@@ -6,6 +6,7 @@ row i has x = x_max - (i + 0.5) res, column j has y = y_max - (j + 0.5) res.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -64,6 +65,22 @@ class BevGrid:
         y = self.y_max - (np.arange(self.cols) + 0.5) * self.res
         xx, yy = np.meshgrid(x, y, indexing="ij")
         return np.stack([xx, yy], -1)
+
+    def turned(self, yaw: float, *grids: np.ndarray, fill=0) -> tuple[np.ndarray, ...]:
+        """Grids (rows, cols, ...) of the world turned by `yaw` radians about the ego z axis (to the
+        left; Rig.turned moves the cameras alike): the cell at p takes the value of the cell holding
+        rot_z(-yaw) p (nearest), `fill` where that lies outside the grid."""
+        c, s = math.cos(yaw), math.sin(yaw)
+        p = self.cell_centres()
+        row, col, inside = self.cell_of(np.stack([c * p[..., 0] + s * p[..., 1], -s * p[..., 0] + c * p[..., 1]], -1))
+        row, col = np.clip(row, 0, self.rows - 1), np.clip(col, 0, self.cols - 1)
+        out = []
+        for g in grids:
+            if g.shape[:2] != self.shape:
+                raise ValueError(f"BEV grid: a grid of shape {g.shape[:2]} is not this grid's {self.shape}")
+            keep = inside.reshape(inside.shape + (1,) * (g.ndim - 2))
+            out.append(np.where(keep, g[row, col], np.asarray(fill, dtype=g.dtype)))
+        return tuple(out)
 
     def cell_of(self, xy):
         """Ego (x, y) (..., >=2) -> (row, col, inside): integer cells, numpy or torch."""

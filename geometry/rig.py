@@ -183,6 +183,14 @@ class Rig:
         """A rig whose cameras are fn(camera) (e.g. resized), same extrinsics."""
         return Rig([RigCamera(c.name, fn(c.camera), c.cam_to_ego.copy()) for c in self], self.name)
 
+    def turned(self, yaw: float) -> "Rig":
+        """The rig carried by the world turned by `yaw` radians about the ego z axis (to the left):
+        every camera's pose rotated about the ego origin, its intrinsics kept, so each camera sees
+        what it saw and an ego point p it saw now lies at rot_z(yaw) p (BevGrid.turned moves the
+        labels alike)."""
+        turn = make_transform(rot_z(yaw), [0.0, 0.0, 0.0])
+        return Rig([RigCamera(c.name, c.camera, turn @ c.cam_to_ego) for c in self], self.name, self.origins)
+
 
 def rig_difference(a: Rig, b: Rig, tol: float = 1e-6) -> str | None:
     """None where rig b is rig a (the same camera names, models, calibrations up to a resize of the

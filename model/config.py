@@ -71,6 +71,11 @@ SCHEMA = Section({
         # the probability that a training sample is mirrored about the ego's x axis: every image
         # flipped left-right, the labels and the lift geometry mirrored with them (model.frustum)
         "mirror": Num(0.0, 1.0, default=0.0),
+        # BEV-space rotation (BEVDet's BDA, exact here): the world of a training sample turned about the ego z
+        # axis by an angle drawn uniformly in [-bev_rotation_deg, +bev_rotation_deg]: the images as they are,
+        # the rig's poses and the labels turned with it (geometry.rig.Rig.turned, geometry.bev.BevGrid.turned);
+        # cells whose label comes from outside the grid are left out of every loss
+        "bev_rotation_deg": Num(0.0, 180.0, default=0.0),
     }),
     "model": Section({
         "trunk": Str(choices=("scratch", "efficientnet_lite0"), default="scratch"),  # model.encoder / model.efficientnet

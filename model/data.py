@@ -10,12 +10,17 @@ such frames every sample carries its geometry, so a batch never mixes samples wi
 Augmentation is drawn from a generator seeded by (seed, epoch, sample index), so a sample is the
 same whichever worker or DDP process loads it, and a resumed run sees the same data as an
 uninterrupted one. A mirrored sample (`augment.mirror`) has its images, camera-view targets and
-labels flipped along y and its lift geometry mirrored (`model.frustum.mirrored_cells`).
+labels flipped along y and its lift geometry mirrored (`model.frustum.mirrored_cells`). A turned sample
+(`augment.bev_rotation_deg`) keeps its images and has its world turned about the ego z axis: its rig's poses
+and labels turned (`Frustum.geometry(yaw=)`, `BevGrid.turned`), and `bev_known` marks the cells whose
+label came from inside the grid (the losses leave the others out).
 On a GPU (`device_images`) the images leave the loader as 8 bits with their colour jitter's draws, and
 `finish` converts and jitters the batch on the device (the same draws, the same kornia steps).
 """
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 import torch
@@ -155,8 +160,10 @@ class BevDataset(Dataset):
         if self.augment:
             a = self.augment
             transforms = [random_transform(rc.camera, self.input_size, rng, a["scale"], a["rotation_deg"], a["crop"]) for rc in frustum.rig]
-            mirrored = a["mirror"] > 0 and bool(rng.random() < a["mirror"])  # drawn last: other draws as without it
-            sample["point_cell"], intrinsics = frustum.geometry(transforms, mirrored, intrinsics=frustum.reads_intrinsics)
+            mirrored = a["mirror"] > 0 and bool(rng.random() < a["mirror"])  # drawn after the others: they stay as without it
+            turn = a["bev_rotation_deg"]
+            yaw = math.radians(rng.uniform(-turn, turn)) if turn > 0 else 0.0  # drawn last, likewise
+            sample["point_cell"], intrinsics = frustum.geometry(transforms, mirrored, intrinsics=frustum.reads_intrinsics, yaw=yaw)
             if intrinsics is not None:  # else the model's pooling never reads them
                 sample["intrinsics"] = intrinsics
         else:
@@ -186,6 +193,10 @@ class BevDataset(Dataset):
             depth, semantic = self.targets_of(ref, frustum, transforms, rectify, f.get("camera_targets"))
             sample["depth_target"], sample["camera_semantic"] = (depth.flip(-1), semantic.flip(-1)) if mirrored else (depth, semantic)
         sem, vis = self.pooled_labels(ref, f)
+        if self.augment and self.augment["bev_rotation_deg"] > 0:  # every sample carries the mask: batches stack
+            known = np.ones(sem.shape, dtype=np.float32)
+            sem, vis, known = self.grid.turned(yaw, sem, vis, known)
+            sample["bev_known"] = torch.from_numpy(known[:, ::-1].copy() if mirrored else known)
         if mirrored:  # the grid's columns run along y: y -> -y
             sem, vis = sem[:, ::-1], vis[:, ::-1]
         return {

@@ -140,11 +140,15 @@ class Frustum:
         transforms = self.nominal_transforms() if transforms is None else transforms
         return Rig([transform_camera(rc, t) for rc, t in zip(self.rig, transforms)], self.rig.name)
 
-    def geometry(self, transforms=None, mirrored: bool = False, intrinsics: bool = True) -> tuple[torch.Tensor, torch.Tensor | None]:
+    def geometry(self, transforms=None, mirrored: bool = False, intrinsics: bool = True,
+                 yaw: float = 0.0) -> tuple[torch.Tensor, torch.Tensor | None]:
         """(point_cell (N, D, h, w) int64, intrinsics (N, INTRINSICS_DIM) float32, None unless
-        `intrinsics`); `mirrored`: of the images flipped left-right, in the world mirrored about the
-        ego x axis (module docstring)."""
+        `intrinsics`); `yaw`: in the world turned by `yaw` radians about the ego z axis (the rig
+        turned with it, geometry.rig.Rig.turned); `mirrored`: of the images flipped left-right, in
+        the world (turned, then) mirrored about the ego x axis (module docstring)."""
         rig = self.input_rig(transforms)
+        if yaw:
+            rig = rig.turned(yaw)
         pc = np.stack([camera_point_cells(rc, self.stride, self.input_size, self.bins, self.grid, self.z_range) for rc in rig])
         if mirrored:
             if self.input_size[0] % self.stride:

@@ -6,7 +6,8 @@ loss. Each sample's loss is the weighted sum divided by the sum of the weights (
 torch's weighted cross entropy), and the batch loss is the mean over samples, so that a batch split
 across DDP processes gives the same gradient as the whole batch in one.
 occlusion (eq. 6): binary cross entropy of the predicted visibility against the true p(o) (soft
-target by default; `binary` thresholds it at 0.5), mean over cells, then over samples.
+target by default; `binary` thresholds it at 0.5), mean over cells (those with a label: `bev_known`,
+model.data), then over samples.
 total (eq. 7): semantic + lambda * occlusion.
 Camera-view terms (off by default): + depth_weight * the cross entropy of the lift's
 depth bins against the bin the pixel's ray hits, + camera_seg_weight * the cross entropy of the
@@ -48,10 +49,14 @@ def semantic_loss(logits, target, visibility, alpha, use_visibility: bool = True
     return per_sample.mean()
 
 
-def occlusion_loss(logits, visibility, target: str = "soft"):
-    """logits (B, X, Y) of visibility; visibility (B, X, Y) true p(o)."""
+def occlusion_loss(logits, visibility, target: str = "soft", known=None):
+    """logits (B, X, Y) of visibility; visibility (B, X, Y) true p(o); `known` (B, X, Y) or None: the
+    cells with a label (a turned sample's corners have none), the mean over those."""
     t = visibility if target == "soft" else (visibility >= 0.5).to(visibility)
-    return F.binary_cross_entropy_with_logits(logits, t, reduction="none").mean((1, 2)).mean()
+    bce = F.binary_cross_entropy_with_logits(logits, t, reduction="none")
+    if known is None:
+        return bce.mean((1, 2)).mean()
+    return ((bce * known).sum((1, 2)) / known.sum((1, 2)).clamp(min=1)).mean()
 
 
 def dice_loss(logits, target, visibility, use_visibility: bool = True):
@@ -90,7 +95,7 @@ def total_loss(out: dict, batch: dict, alpha, lam: float = 1.0, use_visibility: 
                depth_weight: float = 0.0, camera_seg_weight: float = 0.0, dice_weight: float = 0.0):
     """-> (total, {'semantic': .., 'occlusion': .. [, 'depth': .., 'camera_semantic': .., 'dice': ..]}) detached parts for logging."""
     sem = semantic_loss(out["semantic"], batch["semantic"], batch["visibility"], alpha, use_visibility)
-    occ = occlusion_loss(out["occlusion"], batch["visibility"], occ_target)
+    occ = occlusion_loss(out["occlusion"], batch["visibility"], occ_target, batch.get("bev_known"))
     total, parts = sem + lam * occ, {"semantic": sem.detach(), "occlusion": occ.detach()}
     if depth_weight > 0:
         dep = depth_loss(out["depth_logits"], batch["depth_target"])

@@ -12,7 +12,7 @@ import pytest
 import torch
 
 from geometry.bev import BevGrid
-from geometry.rig import RigCamera, load_rig
+from geometry.rig import RigCamera, load_rig, rot_z
 from model import CheckpointError, build_model, load_checkpoint, save_checkpoint
 from model.augment import ColorJitter, ViewTransform, adjust_hue, base_transform, can_rotate, transform_camera, warp_image
 from model.config import ConfigError, validate
@@ -101,6 +101,51 @@ def test_augmentation_moves_camera_with_image(t):
         assert np.abs(centroid(out) - uv2).max() < 0.25, (p, centroid(out), uv2)
         checked += 1
     assert checked >= 2
+
+
+def test_turned_labels_are_the_grid_rotated():
+    """BevGrid.turned: the world turned a quarter turn to the left puts what was ahead (up in the
+    BEV image) on the left: the image rotated counter-clockwise, exactly; yaw 0 changes nothing;
+    an eighth of a turn leaves the corners without a label (`fill`)."""
+    g = BevGrid(res=2.5)  # 20 x 20 cells
+    labels = np.arange(g.rows * g.cols).reshape(g.shape)
+    two = np.stack([labels, -labels], -1)
+    assert np.array_equal(g.turned(0.0, labels)[0], labels)
+    quarter, quarter2 = g.turned(math.pi / 2, labels, two)
+    assert np.array_equal(quarter, np.rot90(labels)) and np.array_equal(quarter2, np.rot90(two))
+    eighth = g.turned(math.pi / 4, labels, fill=-1)[0]
+    assert eighth[0, 0] == eighth[-1, -1] == -1 and (eighth >= 0).mean() > 0.75
+    assert eighth[g.rows // 2, g.cols // 2] == labels[g.rows // 2, g.cols // 2]
+    with pytest.raises(ValueError, match="not this grid's"):
+        g.turned(0.1, labels[:5])
+
+
+@pytest.mark.parametrize("yaw_deg", [7.0, -25.0, 90.0])
+def test_turned_geometry_lands_where_the_turned_labels_are(yaw_deg):
+    """augment.bev_rotation_deg: a camera of the rig turned with the world (Rig.turned) lifts each
+    feature pixel's point into the cell whose turned label (BevGrid.turned) is the label the point
+    had before the turn: the lift and the labels move together (nearest-cell resampling may move
+    a point by one cell)."""
+    yaw = math.radians(yaw_deg)
+    stride, size, bins = 8, (192, 120), depth_bins(1.0, 37.0, 36)
+    cell_id = np.arange(GRID.rows * GRID.cols).reshape(GRID.shape)
+    turned_id = GRID.turned(yaw, cell_id, fill=-1)[0].reshape(-1)
+    for rig in (load_rig("configs/rigs/default.yaml"), load_rig("configs/rigs/mixed.yaml")):
+        for rc, tc in zip(rig, rig.turned(yaw)):
+            assert np.allclose(tc.cam_to_ego[:3, 3], rot_z(yaw) @ rc.cam_to_ego[:3, 3])
+            seen, seen_turned = (transform_camera(c, base_transform(c.camera, size)) for c in (rc, tc))
+            before = camera_point_cells(seen, stride, size, bins, GRID, (-10, 10))
+            after = camera_point_cells(seen_turned, stride, size, bins, GRID, (-10, 10))
+            both = (before >= 0) & (after >= 0)
+            assert both.mean() > 0.2
+            came_from = turned_id[after[both]]
+            labelled = came_from >= 0  # a point in an edge cell whose centre turns back outside the grid: none
+            assert labelled.mean() > 0.99
+            came_from, before = came_from[labelled], before[both][labelled]
+            r0, c0 = np.divmod(before, GRID.cols)
+            r1, c1 = np.divmod(came_from, GRID.cols)
+            assert (came_from == before).mean() > 0.4  # a point uniform in its cell: about half
+            assert np.maximum(abs(r1 - r0), abs(c1 - c0)).max() <= 1
 
 
 @pytest.mark.parametrize("t", [ViewTransform(0.4, 0.0, 0, 0, (192, 120)), ViewTransform(0.42, 8.0, 13, 9, (192, 120))])
@@ -262,6 +307,12 @@ def test_semantic_loss_eq5():
     lo = torch.tensor([[[0.5, -1.0], [2.0, 0.0]]])
     ref = -(t * torch.log(torch.sigmoid(lo)) + (1 - t) * torch.log(1 - torch.sigmoid(lo))).mean()
     assert torch.isclose(occlusion_loss(lo, t), ref)
+    # a turned sample's cells without a label (bev_known 0) are left out of the mean
+    known = torch.tensor([[[1.0, 0.0], [1.0, 1.0]]])
+    keep = known.bool()
+    ref_known = -(t * torch.log(torch.sigmoid(lo)) + (1 - t) * torch.log(1 - torch.sigmoid(lo)))[keep].mean()
+    assert torch.isclose(occlusion_loss(lo, t, known=known), ref_known)
+    assert torch.isclose(occlusion_loss(lo, t, known=torch.ones_like(t)), ref)
     assert class_weights("uniform").tolist() == [1, 1, 1, 1]
 
 
@@ -400,6 +451,9 @@ def test_zero_intervals_are_valid_and_cross_field_checks_remain():
     with pytest.raises(ConfigError, match=r"model\.stride: must be a power of 2"):
         validate({"model": {"stride": 6}}, "c.yaml")
     assert validate({"augment": {"mirror": 0.5}}, "c.yaml")["augment"]["mirror"] == 0.5
+    assert validate({"augment": {"bev_rotation_deg": 22.5}}, "c.yaml")["augment"]["bev_rotation_deg"] == 22.5
+    with pytest.raises(ConfigError, match=r"c\.yaml: augment\.bev_rotation_deg"):
+        validate({"augment": {"bev_rotation_deg": 200}}, "c.yaml")
     with pytest.raises(ConfigError, match=r"c\.yaml: augment\.mirror: needs a pooling that treats every camera alike"):
         validate({"augment": {"mirror": 0.5}, "model": {"pooling": "weighted_sum"}}, "c.yaml")
     with pytest.raises(ConfigError, match=r"augment\.mirror: the input width 190 must be a multiple of model\.stride 8"):

@@ -434,6 +434,37 @@ def test_a_mirrored_sample_is_the_sample_flipped_with_its_geometry_and_labels(re
     assert 0 < flipped < 8
 
 
+def test_a_turned_sample_keeps_its_images_and_turns_its_geometry_with_its_labels(real_tiny, tmp_path):
+    """augment.bev_rotation_deg: a turned sample has the same epoch's unturned images and camera-view
+    targets (the yaw is drawn last), and its lift and labels turned together: a lifted point finds
+    in the turned labels the class it found before the turn (up to nearest-cell resampling);
+    cells turned in from outside the grid have no label and are marked unknown (`bev_known`)."""
+    from model.config import load_config
+    from model.data import BevDataset
+
+    def dataset(deg):
+        cfg = load_config(write_config(tmp_path / f"c{deg}.yaml", real_tiny, augment={"enabled": True, "bev_rotation_deg": deg},
+                                       loss={"depth_weight": 1.0, "camera_seg_weight": 0.5}, data={"grid": label_grid(real_tiny)}))
+        return BevDataset(real_tiny, "train", cfg, train=True)
+
+    plain, turned = dataset(0.0), dataset(40.0)
+    for key in [(3, i) for i in range(4)]:
+        a, t = plain[key], turned[key]
+        assert "bev_known" not in a
+        for k in ("images", "depth_target", "camera_semantic"):
+            assert torch.equal(t[k], a[k]), k
+        known = t["bev_known"].bool()
+        assert 0.6 < known.float().mean() < 1.0  # the corners are turned in from outside
+        assert (t["semantic"][~known] == 0).all() and (t["visibility"][~known] == 0).all()
+        pa, pt = a["point_cell"], t["point_cell"]
+        both = (pa >= 0) & (pt >= 0)
+        cls_before, cls_after = a["semantic"].reshape(-1)[pa[both]], t["semantic"].reshape(-1)[pt[both]]
+        labelled = (cls_before > 0) & (cls_after > 0)
+        assert labelled.sum() > 1000
+        assert (cls_before[labelled] == cls_after[labelled]).float().mean() > 0.9
+        assert not torch.equal(t["semantic"], a["semantic"])
+
+
 def test_images_finished_on_the_device_are_the_workers_images(real_tiny, tmp_path):
     """device_images (a GPU run): samples leave the loader as uint8 with their jitter's draws, and
     `finish` on the batch gives the images the workers would have made (same draws, same steps)."""
