@@ -136,6 +136,9 @@ SCHEMA = Section({
         "lr": Num(above=0, hi=10.0, default=1e-3),
         "lr_schedule": Str(choices=("constant", "cosine"), default="constant"),  # cosine: decays to 0 at the last step
         "warmup_steps": Num(0, 10**9, integer=True, default=0),  # linear warm-up from 0; 0: none
+        # adam: weight_decay as an L2 term in the gradient (torch's Adam); adamw: decoupled, every weight shrunk by
+        # lr x weight_decay a step (torch's AdamW, Loshchilov & Hutter)
+        "optimizer": Str(choices=("adam", "adamw"), default="adam"),
         "weight_decay": Num(0.0, 10.0, default=0.0),
         "grad_clip": Num(0.0, 1e6, default=5.0),
         # an exponential moving average of the weights, this decay per step (0: off): validation, best.pt and

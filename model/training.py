@@ -198,7 +198,8 @@ def setup_distributed(device_kind: str):
 
 def make_optimizer(cfg: dict, model: torch.nn.Module) -> torch.optim.Optimizer:
     t = cfg["train"]
-    return torch.optim.Adam(model.parameters(), lr=t["lr"], weight_decay=t["weight_decay"])
+    kind = torch.optim.AdamW if t["optimizer"] == "adamw" else torch.optim.Adam
+    return kind(model.parameters(), lr=t["lr"], weight_decay=t["weight_decay"])
 
 
 def run_precision(cfg: dict, device: torch.device, latest: Path, quiet: bool = True) -> dict:

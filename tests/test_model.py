@@ -103,6 +103,23 @@ def test_augmentation_moves_camera_with_image(t):
     assert checked >= 2
 
 
+@pytest.mark.parametrize("kind", ["adam", "adamw"])
+def test_weight_decay_of_each_optimizer(kind):
+    """train.optimizer: with no gradient, adamw's decoupled decay shrinks every weight by lr x
+    weight_decay in a step, exactly; adam's L2 term goes through the moment estimates, which turn it
+    into a step of lr against each weight's sign."""
+    from model.training import make_optimizer
+
+    layer = torch.nn.Linear(3, 2)
+    w0 = layer.weight.detach().clone()
+    opt = make_optimizer({"train": {"optimizer": kind, "lr": 0.01, "weight_decay": 0.5}}, layer)
+    for p in layer.parameters():
+        p.grad = torch.zeros_like(p)
+    opt.step()
+    want = w0 * (1 - 0.01 * 0.5) if kind == "adamw" else w0 - 0.01 * torch.sign(w0)
+    assert torch.allclose(layer.weight.detach(), want, atol=1e-6)
+
+
 def test_turned_labels_are_the_grid_rotated():
     """BevGrid.turned: the world turned a quarter turn to the left puts what was ahead (up in the
     BEV image) on the left: the image rotated counter-clockwise, exactly; yaw 0 changes nothing;
