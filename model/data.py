@@ -156,14 +156,14 @@ class BevDataset(Dataset):
         seed = int(rng.integers(2**63))  # the colour jitter's torch seed
         sample = {}
         frustum, rectify = self.geometry_of(ref, f["meta"])
-        mirrored = False
+        mirrored, yaw = False, None  # yaw: the turn of the world, radians (augment.bev_rotation_deg > 0)
         if self.augment:
             a = self.augment
             transforms = [random_transform(rc.camera, self.input_size, rng, a["scale"], a["rotation_deg"], a["crop"]) for rc in frustum.rig]
             mirrored = a["mirror"] > 0 and bool(rng.random() < a["mirror"])  # drawn after the others: they stay as without it
             turn = a["bev_rotation_deg"]
-            yaw = math.radians(rng.uniform(-turn, turn)) if turn > 0 else 0.0  # drawn last, likewise
-            sample["point_cell"], intrinsics = frustum.geometry(transforms, mirrored, intrinsics=frustum.reads_intrinsics, yaw=yaw)
+            yaw = math.radians(rng.uniform(-turn, turn)) if turn > 0 else None  # drawn last, likewise
+            sample["point_cell"], intrinsics = frustum.geometry(transforms, mirrored, intrinsics=frustum.reads_intrinsics, yaw=yaw or 0.0)
             if intrinsics is not None:  # else the model's pooling never reads them
                 sample["intrinsics"] = intrinsics
         else:
@@ -193,12 +193,14 @@ class BevDataset(Dataset):
             depth, semantic = self.targets_of(ref, frustum, transforms, rectify, f.get("camera_targets"))
             sample["depth_target"], sample["camera_semantic"] = (depth.flip(-1), semantic.flip(-1)) if mirrored else (depth, semantic)
         sem, vis = self.pooled_labels(ref, f)
-        if self.augment and self.augment["bev_rotation_deg"] > 0:  # every sample carries the mask: batches stack
-            known = np.ones(sem.shape, dtype=np.float32)
-            sem, vis, known = self.grid.turned(yaw, sem, vis, known)
-            sample["bev_known"] = torch.from_numpy(known[:, ::-1].copy() if mirrored else known)
+        known = None
+        if yaw is not None:  # every such sample carries the mask, a zero turn too: batches stack
+            sem, vis, known = self.grid.turned(yaw, sem, vis, np.ones(sem.shape, dtype=np.float32))
         if mirrored:  # the grid's columns run along y: y -> -y
             sem, vis = sem[:, ::-1], vis[:, ::-1]
+            known = None if known is None else known[:, ::-1].copy()
+        if known is not None:
+            sample["bev_known"] = torch.from_numpy(known)
         return {
             **sample,
             "images": images.contiguous(),  # NCHW (the jitter returns NHWC): a loader in this process (data.num_workers 0) hands the trunk what a worker does
