@@ -140,6 +140,8 @@ SCHEMA = Section({
         # lr x weight_decay a step (torch's AdamW, Loshchilov & Hutter)
         "optimizer": Str(choices=("adam", "adamw"), default="adam"),
         "weight_decay": Num(0.0, 10.0, default=0.0),
+        # false: the weights of one dimension (biases, BatchNorm's scale and shift) left out of weight_decay
+        "decay_vectors": Bool(default=True),
         "grad_clip": Num(0.0, 1e6, default=5.0),
         # an exponential moving average of the weights, this decay per step (0: off): validation, best.pt and
         # latest.pt's `model` hold the average (what eval and predict read); latest.pt keeps the raw weights to resume

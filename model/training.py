@@ -196,10 +196,19 @@ def setup_distributed(device_kind: str):
     return rank, world, device
 
 
+def decay_of_groups(t: dict) -> list[float]:
+    """train.weight_decay of each of make_optimizer's parameter groups."""
+    return [t["weight_decay"]] if t["decay_vectors"] else [t["weight_decay"], 0.0]
+
+
 def make_optimizer(cfg: dict, model: torch.nn.Module) -> torch.optim.Optimizer:
+    """Adam or AdamW over the model's weights; with train.decay_vectors false the weights of one
+    dimension (biases, norms' scale and shift) in a second group that weight_decay leaves alone."""
     t = cfg["train"]
     kind = torch.optim.AdamW if t["optimizer"] == "adamw" else torch.optim.Adam
-    return kind(model.parameters(), lr=t["lr"], weight_decay=t["weight_decay"])
+    params = list(model.parameters())
+    groups = [params] if t["decay_vectors"] else [[p for p in params if p.ndim > 1], [p for p in params if p.ndim <= 1]]
+    return kind([{"params": g, "weight_decay": wd} for g, wd in zip(groups, decay_of_groups(t))], lr=t["lr"])
 
 
 def run_precision(cfg: dict, device: torch.device, latest: Path, quiet: bool = True) -> dict:
@@ -310,8 +319,8 @@ def resume(run: Run) -> None:
         torch.set_rng_state(ckpt["rng"])
     except (RuntimeError, ValueError, KeyError, TypeError) as exc:
         raise CheckpointError(f"{run.latest}: does not fit this model ({str(exc).splitlines()[0][:120]})") from None
-    for g in run.opt.param_groups:  # the config's learning rate, also when changed for the resume (--set)
-        g["lr"], g["weight_decay"] = run.cfg["train"]["lr"], run.cfg["train"]["weight_decay"]
+    for g, decay in zip(run.opt.param_groups, decay_of_groups(run.cfg["train"])):  # the config's, also when changed for the resume (--set)
+        g["lr"], g["weight_decay"] = run.cfg["train"]["lr"], decay
     run.step, run.epoch, run.step_in_epoch, run.best = ckpt["step"], ckpt["epoch"], ckpt["step_in_epoch"], ckpt["best"]
     if run.cfg["train"]["minutes"] and ckpt.get("minutes"):  # the epochs it decided (train.minutes 0 and train.epochs: more)
         decide_epochs(run, ckpt["minutes"])

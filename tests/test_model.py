@@ -112,12 +112,34 @@ def test_weight_decay_of_each_optimizer(kind):
 
     layer = torch.nn.Linear(3, 2)
     w0 = layer.weight.detach().clone()
-    opt = make_optimizer({"train": {"optimizer": kind, "lr": 0.01, "weight_decay": 0.5}}, layer)
+    opt = make_optimizer({"train": {"optimizer": kind, "lr": 0.01, "weight_decay": 0.5, "decay_vectors": True}}, layer)
     for p in layer.parameters():
         p.grad = torch.zeros_like(p)
     opt.step()
     want = w0 * (1 - 0.01 * 0.5) if kind == "adamw" else w0 - 0.01 * torch.sign(w0)
     assert torch.allclose(layer.weight.detach(), want, atol=1e-6)
+
+
+def test_decay_vectors_false_leaves_biases_and_norms_alone():
+    """train.decay_vectors false: adamw still shrinks the matrices and kernels, but the biases and
+    BatchNorm's scale and shift (weights of one dimension) keep their values when there is no
+    gradient; a resume puts each group's decay back from the config (decay_of_groups)."""
+    from model.training import decay_of_groups, make_optimizer
+
+    net = torch.nn.Sequential(torch.nn.Conv2d(2, 3, 3), torch.nn.BatchNorm2d(3))
+    with torch.no_grad():
+        net[1].weight.fill_(2.0), net[1].bias.fill_(1.0)
+    before = {k: v.detach().clone() for k, v in net.named_parameters()}
+    t = {"optimizer": "adamw", "lr": 0.01, "weight_decay": 0.5, "decay_vectors": False}
+    opt = make_optimizer({"train": t}, net)
+    assert [g["weight_decay"] for g in opt.param_groups] == decay_of_groups(t) == [0.5, 0.0]
+    for p in net.parameters():
+        p.grad = torch.zeros_like(p)
+    opt.step()
+    after = dict(net.named_parameters())
+    assert torch.allclose(after["0.weight"], before["0.weight"] * (1 - 0.01 * 0.5), atol=1e-7)
+    for name in ("0.bias", "1.weight", "1.bias"):
+        assert torch.equal(after[name].detach(), before[name]), name
 
 
 def test_turned_labels_are_the_grid_rotated():
