@@ -48,6 +48,8 @@ def loader_parts(ds, indices) -> dict:
         if a:
             tr = [random_transform(rc.camera, ds.input_size, rng, a["scale"], a["rotation_deg"], a["crop"]) for rc in frustum.rig]
             frustum.geometry(tr, intrinsics=frustum.reads_intrinsics)  # as the data set does
+            if frustum.ground:
+                frustum.ground_grid(tr)
         else:
             tr = frustum.nominal_transforms()
         t2 = time.perf_counter()
@@ -117,7 +119,8 @@ def main(argv=None):
         feats = splat(l2.softmax(2), c2, index)
         marks.append(time.perf_counter())
         f2 = feats.detach().requires_grad_()
-        out = model.bev_outputs(f2, index, *depth_logits.shape[:2], batch.get("intrinsics"))
+        out = model.bev_outputs(f2, index, *depth_logits.shape[:2], batch.get("intrinsics"),
+                                model.ground_samples(batch["images"], batch.get("ground_grid")))
         out = model.training_outputs(out, l2, c2)  # the depth and camera-view terms' outputs
         marks.append(time.perf_counter())
         loss, _ = config_loss(out, batch, alpha, cfg["loss"])

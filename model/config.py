@@ -100,6 +100,10 @@ SCHEMA = Section({
         }),
         "z_range": List(Num(-1000.0, 1000.0), length=2, default=[-10.0, 10.0]),
         "pooling": Str(choices=POOLINGS, default="sum"),
+        # the ground image (model.ground; docs/model.md "The ground image"): each camera's input image sampled where
+        # every BEV cell's ground point (ego z = 0) projects, through a 3x3 convolution of this many channels, added
+        # to the pooled BEV features and to the heads' input; exact for what lies on the road (markings); 0: off
+        "ground_channels": Num(0, 4096, integer=True, default=0),
         "bev_encoder": Section({
             "widths": List(Num(1, 4096, integer=True), length=3, default=[32, 64, 128]),
             "blocks": List(Num(1, 64, integer=True), length=2, default=[1, 1]),
@@ -191,6 +195,9 @@ def _semantic_checks(cfg: dict, source: str):
         if m["pooling"] not in ("sum", "max"):
             raise ConfigError(f"{source}: augment.mirror: needs a pooling that treats every camera alike (sum, max); "
                               f"{m['pooling']} learns weights per camera, which a mirrored rig would swap")
+        if m["ground_channels"]:
+            raise ConfigError(f"{source}: augment.mirror: the ground image (model.ground_channels) learns weights per camera, "
+                              "which a mirrored rig would swap")
         if cfg["data"]["input_size"][0] % s:
             raise ConfigError(f"{source}: augment.mirror: the input width {cfg['data']['input_size'][0]} must be a multiple "
                               f"of model.stride {s} (the feature columns are mirrored)")

@@ -3,7 +3,8 @@
 Each camera image is brought to the config's input size by a view transform that moves the camera
 with it (`model.augment`). An augmented sample carries the lift geometry of its cameras
 (`point_cell`, which BEV cell every lifted point lands in, and, for the intrinsics-embedding
-pooling, their intrinsics descriptors, from `model.frustum.Frustum`); a sample without
+pooling, their intrinsics descriptors, and, for the ground image, `ground_grid`, where each cell's
+ground point lies in each input image, from `model.frustum.Frustum`); a sample without
 augmentation carries none, and the model uses its cached nominal geometry. A frame rendered
 through its own (jittered) rig (`FrameRef.own_rig`) is lifted with that rig: in a split holding
 such frames every sample carries its geometry, so a batch never mixes samples with and without it.
@@ -166,10 +167,14 @@ class BevDataset(Dataset):
             sample["point_cell"], intrinsics = frustum.geometry(transforms, mirrored, intrinsics=frustum.reads_intrinsics, yaw=yaw or 0.0)
             if intrinsics is not None:  # else the model's pooling never reads them
                 sample["intrinsics"] = intrinsics
+            if frustum.ground:
+                sample["ground_grid"] = frustum.ground_grid(transforms, yaw or 0.0)
         else:
             transforms = frustum.nominal_transforms()
             if self.carry_geometry:
                 sample["point_cell"], sample["intrinsics"] = frustum.nominal
+                if frustum.ground:
+                    sample["ground_grid"] = frustum.nominal_ground
         imgs = []
         for rc, t in zip(frustum.rig, transforms):
             img, src = f["images"][rc.name], self.index.rig[rc.name].camera

@@ -33,7 +33,7 @@ from functools import cached_property
 from geometry.bev import BevGrid
 from geometry.rig import Rig, RigCamera
 
-from .augment import base_transform, transform_camera
+from .augment import base_transform, transform_camera, view_matrix
 
 
 def depth_edges(d_min: float, d_max: float, bins: int, spacing: str = "linear") -> np.ndarray:
@@ -131,6 +131,8 @@ class Frustum:
         # only the intrinsics-embedding pooling reads a sample's intrinsics descriptors (a tenth of a
         # training sample's loading time, 2.4 of 24.5 ms, when every pooling had them computed)
         self.reads_intrinsics = m["pooling"] == "intrinsics_embedding"
+        # the ground image (model.ground_channels > 0): the input images sampled at each cell's ground point
+        self.ground = m["ground_channels"] > 0
 
     def nominal_transforms(self) -> list:
         return [base_transform(rc.camera, self.input_size) for rc in self.rig]
@@ -162,3 +164,50 @@ class Frustum:
     @cached_property
     def nominal(self) -> tuple[torch.Tensor, torch.Tensor]:
         return self.geometry(None)
+
+    @cached_property
+    def ground_native(self) -> tuple[np.ndarray, np.ndarray]:
+        """(uv (N, X, Y, 2), on (N, X, Y) bool): where each BEV cell centre's ground point (ego z = 0)
+        projects in each camera's native image, and whether that is on the image."""
+        return ground_projection(self.rig, self.grid)
+
+    def ground_grid(self, transforms=None, yaw: float = 0.0) -> torch.Tensor:
+        """(N, X, Y, 2) float32: where each BEV cell's ground point lies in each camera's input image
+        (the cameras as `geometry` takes them; no mirrored form: the config refuses the mirror with a
+        ground image), as torch's grid_sample reads positions (x, y in
+        [-1, 1] across the image, align_corners=False); GROUND_OFF where the camera does not see it.
+        Without a turn the native projection is moved by each view transform's affine map of pixels
+        (model.augment.view_matrix: what warp_image applies), else projected through the turned rig."""
+        transforms = self.nominal_transforms() if transforms is None else transforms
+        w, h = self.input_size
+        if yaw:
+            uv, on = ground_projection(self.input_rig(transforms).turned(yaw), self.grid)
+        else:
+            uv, on = self.ground_native
+            a = np.stack([view_matrix(rc.camera, t) for rc, t in zip(self.rig, transforms)])[:, None, None]  # (N, 1, 1, 3, 3)
+            u, v = uv[..., 0], uv[..., 1]
+            uv = np.stack([a[..., 0, 0] * u + a[..., 0, 1] * v + a[..., 0, 2], a[..., 1, 0] * u + a[..., 1, 1] * v + a[..., 1, 2]], -1)
+        on = on & (uv[..., 0] >= -0.5) & (uv[..., 0] <= w - 0.5) & (uv[..., 1] >= -0.5) & (uv[..., 1] <= h - 0.5)
+        g = np.stack([(uv[..., 0] + 0.5) / w * 2 - 1, (uv[..., 1] + 0.5) / h * 2 - 1], -1)
+        return torch.from_numpy(np.where(on[..., None], g, GROUND_OFF).astype(np.float32))
+
+    @cached_property
+    def nominal_ground(self) -> torch.Tensor:
+        return self.ground_grid(None)
+
+
+GROUND_OFF = -2.0  # a ground_grid position no camera pixel has: grid_sample reads zeros there
+
+
+def ground_projection(rig: Rig, grid: BevGrid) -> tuple[np.ndarray, np.ndarray]:
+    """(uv (N, X, Y, 2) float64, on (N, X, Y) bool): each cell centre's ground point (ego z = 0) in
+    each camera of `rig`, and whether the camera model maps it onto the image."""
+    xy = grid.cell_centres()
+    pts = np.concatenate([xy, np.zeros(xy.shape[:2] + (1,))], -1)
+    uvs, ons = [], []
+    for rc in rig:
+        uv, valid = rc.project_ego(pts)
+        uv = np.nan_to_num(np.asarray(uv, dtype=np.float64), nan=-1e9, posinf=-1e9, neginf=-1e9)
+        uvs.append(uv)
+        ons.append(np.asarray(valid, dtype=bool) & np.asarray(rc.camera.inside(uv), dtype=bool))
+    return np.stack(uvs), np.stack(ons)

@@ -53,7 +53,7 @@ def to_device(batch: dict, device) -> dict:
 def forward(model, batch: dict) -> dict:
     """The model's raw output on a batch: augmented samples bring their cameras' geometry, others
     use the model's cached nominal geometry."""
-    return model(batch["images"], batch.get("point_cell"), batch.get("intrinsics"))
+    return model(batch["images"], batch.get("point_cell"), batch.get("intrinsics"), batch.get("ground_grid"))
 
 
 def decode(out: dict) -> Prediction:
@@ -108,7 +108,12 @@ class RigModel:
         view = model_view(rig, cfg)
         self.rectify, self.frustum = view.rectifier, view.frustum
         # the training rig itself: the model's own cached geometry, as eval uses it
-        self.geometry = None if rig.to_dict() == train_rig_dict else tuple(t[None] for t in self.frustum.nominal)
+        self.geometry = None
+        if rig.to_dict() != train_rig_dict:
+            pc, intr = self.frustum.nominal
+            self.geometry = {"point_cell": pc[None], "intrinsics": intr[None]}
+            if self.frustum.ground:
+                self.geometry["ground_grid"] = self.frustum.nominal_ground[None]
 
     def inputs(self, images: dict) -> torch.Tensor:
         out = []
@@ -123,6 +128,6 @@ class RigModel:
     def __call__(self, images: dict) -> Prediction:
         batch = {"images": self.inputs(images)}
         if self.geometry is not None:
-            batch["point_cell"], batch["intrinsics"] = self.geometry
+            batch.update(self.geometry)
         self.model.eval()
         return predict(self.model, batch)

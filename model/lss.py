@@ -13,6 +13,7 @@ from .bev_encoder import BevEncoder
 from .cpu import resolve_precision
 from .encoder import ImageEncoder
 from .frustum import Frustum
+from .ground import GroundImage, sample_ground
 from .pooling import make_pooling
 from .splat import splat, splat_count, splat_index
 
@@ -56,6 +57,10 @@ class LSSFisheye(nn.Module):
         self.bf16 = resolve_precision(mcfg["precision"], torch.device("cpu")) == "bf16"  # train.py resolves auto per device
         # built last, so the other layers draw the same initial weights with or without it
         self.camera_head = nn.Conv2d(c, num_classes - 1, 1) if camera_head else None
+        self.ground = None  # the ground image (model.ground_channels): after every other layer, likewise
+        if mcfg["ground_channels"] > 0:
+            self.ground = GroundImage(len(pc), mcfg["ground_channels"], c, self.bev.out_channels, mcfg["norm"])
+            self.register_buffer("nominal_ground", frustum.nominal_ground, persistent=False)
 
     def _index(self, point_cell, batch: int):
         """The splat index of this batch's cameras; for the nominal cameras it is built once per
@@ -74,9 +79,10 @@ class LSSFisheye(nn.Module):
         """bfloat16 autocast on x's device where model.precision is bf16, else nothing."""
         return torch.autocast(x.device.type, dtype=torch.bfloat16, enabled=self.bf16)
 
-    def bev_outputs(self, feats, index, b: int, n: int, intrinsics=None) -> dict:
+    def bev_outputs(self, feats, index, b: int, n: int, intrinsics=None, ground=None) -> dict:
         """The splat's output (features per cell, or per camera and cell) -> {'semantic',
-        'occlusion'}: camera pooling, the BEV encoder and the heads."""
+        'occlusion'}: camera pooling, the BEV encoder and the heads; `ground`: the ground image's
+        samples (`ground_samples`) where the model has one."""
         x_, y_ = self.grid.shape
         if self.pooling_kind == "sum":
             pooled = self.pool(feats.view(b, x_, y_, -1))
@@ -86,8 +92,23 @@ class LSSFisheye(nn.Module):
                 intrinsics = self.nominal_intrinsics[None].expand(b, -1, -1)
             pooled = self.pool(feats.view(b, n, x_, y_, -1), cover, intrinsics)
         with self._autocast(pooled):
-            y = self.bev(pooled)
+            if self.ground is None:
+                y = self.bev(pooled)
+            else:
+                to_bev, to_head = self.ground(ground)
+                y = self.bev(pooled + to_bev) + to_head
             return {"semantic": self.semantic_head(y).float(), "occlusion": self.occlusion_head(y)[:, 0].float()}
+
+    def ground_samples(self, images, ground_grid=None):
+        """images (B, N, 3, H, W) in [0, 1] -> the ground image's samples (B, 4 N, X, Y), at the
+        nominal cameras' ground points unless `ground_grid` (B, N, X, Y, 2) gives the batch's; None
+        without a ground image."""
+        if self.ground is None:
+            return None
+        if ground_grid is None:
+            ground_grid = self.nominal_ground[None].expand(images.shape[0], *self.nominal_ground.shape)
+        x = self.encoder.normalise(images.flatten(0, 1)).reshape(images.shape)
+        return sample_ground(x, ground_grid)
 
     def lift(self, images):
         """images (B, N, 3, H, W) in [0, 1] -> depth probabilities (B, N, D, h, w), context (B, N, C, h, w)."""
@@ -108,9 +129,10 @@ class LSSFisheye(nn.Module):
         ctx = ctx[..., :hs, :ws]
         return depth_logits.reshape(b, n, *depth_logits.shape[1:]), ctx.reshape(b, n, *ctx.shape[1:])
 
-    def forward(self, images, point_cell=None, intrinsics=None):
-        """images (B, N, 3, H, W) in [0, 1] at the input size; point_cell (B, N, D, h, w) and
-        intrinsics (B, N, 12) for augmented cameras (default: the rig's nominal ones, index cached).
+    def forward(self, images, point_cell=None, intrinsics=None, ground_grid=None):
+        """images (B, N, 3, H, W) in [0, 1] at the input size; point_cell (B, N, D, h, w),
+        intrinsics (B, N, 12) and ground_grid (B, N, X, Y, 2) for augmented cameras (default: the
+        rig's nominal ones, index cached).
         -> {'semantic': (B, K-1, X, Y) logits, 'occlusion': (B, X, Y) visibility logits}; in training
         also 'depth_logits' (B, N, D, h, w) and, with the camera head, 'camera_semantic' (B, N, K-1, h, w)."""
         if images.ndim != 5 or images.shape[1] != len(self.camera_names) or tuple(images.shape[-1:-3:-1]) != self.input_size:
@@ -121,7 +143,7 @@ class LSSFisheye(nn.Module):
         if point_cell is not None and point_cell.shape[2:] != depth.shape[2:]:
             raise ValueError(f"model: point_cell {tuple(point_cell.shape)} does not match the features {tuple(depth.shape)}")
         index = self._index(point_cell, b)
-        out = self.bev_outputs(splat(depth, ctx, index), index, b, n, intrinsics)
+        out = self.bev_outputs(splat(depth, ctx, index), index, b, n, intrinsics, self.ground_samples(images, ground_grid))
         return self.training_outputs(out, depth_logits, ctx) if self.training else out
 
     def training_outputs(self, out: dict, depth_logits, ctx) -> dict:
