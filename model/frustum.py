@@ -176,17 +176,15 @@ class Frustum:
         (the cameras as `geometry` takes them; no mirrored form: the config refuses the mirror with a
         ground image), as torch's grid_sample reads positions (x, y in
         [-1, 1] across the image, align_corners=False); GROUND_OFF where the camera does not see it.
-        Without a turn the native projection is moved by each view transform's affine map of pixels
-        (model.augment.view_matrix: what warp_image applies), else projected through the turned rig."""
+        The native projection (of the turned rig, with a turn: turning moves the poses only, so it
+        commutes with the view transforms) is moved by each view transform's affine map of pixels
+        (model.augment.view_matrix: what warp_image applies), so the crop's padding is never seen."""
         transforms = self.nominal_transforms() if transforms is None else transforms
         w, h = self.input_size
-        if yaw:
-            uv, on = ground_projection(self.input_rig(transforms).turned(yaw), self.grid)
-        else:
-            uv, on = self.ground_native
-            a = np.stack([view_matrix(rc.camera, t) for rc, t in zip(self.rig, transforms)])[:, None, None]  # (N, 1, 1, 3, 3)
-            u, v = uv[..., 0], uv[..., 1]
-            uv = np.stack([a[..., 0, 0] * u + a[..., 0, 1] * v + a[..., 0, 2], a[..., 1, 0] * u + a[..., 1, 1] * v + a[..., 1, 2]], -1)
+        uv, on = ground_projection(self.rig.turned(yaw), self.grid) if yaw else self.ground_native
+        a = np.stack([view_matrix(rc.camera, t) for rc, t in zip(self.rig, transforms)])[:, None, None]  # (N, 1, 1, 3, 3)
+        u, v = uv[..., 0], uv[..., 1]
+        uv = np.stack([a[..., 0, 0] * u + a[..., 0, 1] * v + a[..., 0, 2], a[..., 1, 0] * u + a[..., 1, 1] * v + a[..., 1, 2]], -1)
         on = on & (uv[..., 0] >= -0.5) & (uv[..., 0] <= w - 0.5) & (uv[..., 1] >= -0.5) & (uv[..., 1] <= h - 0.5)
         g = np.stack([(uv[..., 0] + 0.5) / w * 2 - 1, (uv[..., 1] + 0.5) / h * 2 - 1], -1)
         return torch.from_numpy(np.where(on[..., None], g, GROUND_OFF).astype(np.float32))

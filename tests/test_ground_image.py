@@ -73,6 +73,14 @@ def test_turned_ground_grid_is_the_grid_turned():
     assert seen.mean() > 0.3
     assert np.abs(turned - want)[seen].max() < 1e-5
     assert ((turned != GROUND_OFF).all(-1) == (want != GROUND_OFF).all(-1)).mean() > 0.999
+    # with view transforms too: the projection through the transformed cameras of the turned rig
+    rng = np.random.default_rng(5)
+    ts = [random_transform(rc.camera, fr.input_size, rng, [0.8, 1.2], 10.0, True) for rc in rig]
+    got = fr.ground_grid(ts, yaw=0.3).numpy()
+    uv, on = ground_projection(fr.input_rig(ts).turned(0.3), fr.grid)
+    seen = (got != GROUND_OFF).all(-1)
+    assert (seen & on).mean() > 0.2 and not (seen & ~on).any()
+    assert np.abs(pixels(got, fr.input_size)[seen] - uv[seen]).max() < 1e-4
 
 
 def test_ground_samples_read_each_image_at_the_ground_point():
