@@ -102,6 +102,13 @@ def view_matrix(camera, t: ViewTransform) -> np.ndarray:
     return a
 
 
+def move_pixels(a: np.ndarray, u, v):
+    """Pixel positions (u, v) through the affine map `a` (3x3, or (..., 3, 3) broadcast against u and
+    v: one map per camera): a view_matrix or its inverse."""
+    a = np.asarray(a)
+    return a[..., 0, 0] * u + a[..., 0, 1] * v + a[..., 0, 2], a[..., 1, 0] * u + a[..., 1, 1] * v + a[..., 1, 2]
+
+
 def warp_image(image: np.ndarray, camera, t: ViewTransform) -> np.ndarray:
     """(H, W, 3) uint8 image of `camera` -> the transformed (t.size) image."""
     s = t.scale

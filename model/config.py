@@ -100,7 +100,7 @@ SCHEMA = Section({
         }),
         "z_range": List(Num(-1000.0, 1000.0), length=2, default=[-10.0, 10.0]),
         "pooling": Str(choices=POOLINGS, default="sum"),
-        # the ground image (model.ground; docs/model.md "The ground image"): each camera's input image sampled where
+        # the ground image (model/ground.py; docs/model.md "The ground image"): each camera's input image sampled where
         # every BEV cell's ground point (ego z = 0) projects, through a 3x3 convolution of this many channels, added
         # to the pooled BEV features and to the heads' input; exact for what lies on the road (markings); 0: off
         "ground_channels": Num(0, 4096, integer=True, default=0),

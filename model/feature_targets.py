@@ -24,7 +24,7 @@ import numpy as np
 from dataset_tools.format.camera_targets import NO_HIT, decode_distance
 from dataset_tools.labels.classes import CLASS_IDS, DEFAULT_CLASS_MAP, NUM_FINE_CLASSES
 
-from .augment import view_matrix
+from .augment import move_pixels, view_matrix
 from .rectified import source_maps
 
 EGO = CLASS_IDS["ego"]
@@ -58,8 +58,7 @@ def source_pixels(frustum, rc, t, rect=None) -> tuple[np.ndarray, np.ndarray, np
     (a camera of frustum.rig: the fisheye, or its cylinder with `rect`) samples under view transform `t`."""
     u, v, on_input = _feature_centres(tuple(frustum.input_size), frustum.stride)
     inv = np.linalg.inv(view_matrix(rc.camera, t))
-    su = inv[0, 0] * u + inv[0, 1] * v + inv[0, 2]
-    sv = inv[1, 0] * u + inv[1, 1] * v + inv[1, 2]
+    su, sv = move_pixels(inv, u, v)
     col, row = _nearest(su), _nearest(sv)
     cam = rc.camera
     ok = on_input & (col >= 0) & (col < cam.width) & (row >= 0) & (row < cam.height)

@@ -33,7 +33,7 @@ from functools import cached_property
 from geometry.bev import BevGrid
 from geometry.rig import Rig, RigCamera
 
-from .augment import base_transform, transform_camera, view_matrix
+from .augment import base_transform, move_pixels, transform_camera, view_matrix
 
 
 def depth_edges(d_min: float, d_max: float, bins: int, spacing: str = "linear") -> np.ndarray:
@@ -183,8 +183,7 @@ class Frustum:
         w, h = self.input_size
         uv, on = ground_projection(self.rig.turned(yaw), self.grid) if yaw else self.ground_native
         a = np.stack([view_matrix(rc.camera, t) for rc, t in zip(self.rig, transforms)])[:, None, None]  # (N, 1, 1, 3, 3)
-        u, v = uv[..., 0], uv[..., 1]
-        uv = np.stack([a[..., 0, 0] * u + a[..., 0, 1] * v + a[..., 0, 2], a[..., 1, 0] * u + a[..., 1, 1] * v + a[..., 1, 2]], -1)
+        uv = np.stack(move_pixels(a, uv[..., 0], uv[..., 1]), -1)
         on = on & (uv[..., 0] >= -0.5) & (uv[..., 0] <= w - 0.5) & (uv[..., 1] >= -0.5) & (uv[..., 1] <= h - 0.5)
         g = np.stack([(uv[..., 0] + 0.5) / w * 2 - 1, (uv[..., 1] + 0.5) / h * 2 - 1], -1)
         return torch.from_numpy(np.where(on[..., None], g, GROUND_OFF).astype(np.float32))
